@@ -1,0 +1,1 @@
+"""granular_pyg."""

@@ -1,0 +1,1 @@
+"""Benchmarks: ``python -m granular_pyg.bench suite=<name>`` (see ``conf/suite/``)."""

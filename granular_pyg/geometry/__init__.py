@@ -1,0 +1,24 @@
+"""Geometry core: point-triangle distances, wall normals, and the wall index (culling)."""
+
+from granular_pyg.geometry.closest_point import (
+    closest_point_on_segments,
+    closest_point_on_triangles,
+    triangle_regions,
+)
+from granular_pyg.geometry.normals import canonical_normals, orientation_key, triangle_normals
+from granular_pyg.geometry.rigid import pose_about_axis, rotation_about_axis
+from granular_pyg.geometry.wall_index import WallIndex, WallPairs, dense_wall_pairs
+
+__all__ = [
+    "WallIndex",
+    "WallPairs",
+    "canonical_normals",
+    "closest_point_on_segments",
+    "closest_point_on_triangles",
+    "dense_wall_pairs",
+    "orientation_key",
+    "pose_about_axis",
+    "rotation_about_axis",
+    "triangle_normals",
+    "triangle_regions",
+]

@@ -1,0 +1,143 @@
+"""WallIndex returns exactly the brute-force pair set, with work that follows the near pairs."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+import trimesh
+
+from granular_pyg.errors import InputError
+from granular_pyg.geometry import WallIndex, dense_wall_pairs, pose_about_axis
+
+
+def _pair_set(point_idx, tri_idx) -> set[tuple[int, int]]:
+    return set(zip(point_idx.tolist(), tri_idx.tolist(), strict=True))
+
+
+def _random_scene(seed: int, num_points=3000, dtype=torch.float64):
+    """A subdivided icosphere and a box (hundreds of triangles) with points around them."""
+    g = torch.Generator().manual_seed(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.3)  # 320 triangles
+    box = trimesh.creation.box(extents=(0.4, 0.2, 0.6))
+    box.apply_translation((0.5, 0.1, -0.2))
+    mesh = trimesh.util.concatenate([sphere, box])
+    vertices = torch.tensor(mesh.vertices, dtype=dtype)
+    vertices += 0.01 * torch.randn(vertices.shape, generator=g, dtype=dtype)  # irregular
+    faces = torch.tensor(mesh.faces, dtype=torch.int64)
+    points = (torch.rand(num_points, 3, generator=g, dtype=dtype) - 0.5) * 1.6
+    return vertices, faces, points
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("radius", [0.003, 0.02, 0.07, 0.25])
+def test_query_equals_dense_brute_force(seed, radius):
+    vertices, faces, points = _random_scene(seed)
+    index = WallIndex(vertices, faces)
+    found = index.pairs(points, radius)
+    dense = dense_wall_pairs(points, vertices[faces], radius)
+    assert _pair_set(found.point_idx, found.tri_idx) == _pair_set(dense.point_idx, dense.tri_idx)
+    assert len(found.point_idx) > 0
+    # Same pairs in the same (sorted) order, so the closest points line up too.
+    torch.testing.assert_close(found.closest, dense.closest)
+    torch.testing.assert_close(found.sq_dist, dense.sq_dist)
+    assert (found.sq_dist < radius**2).all()
+
+
+@pytest.mark.parametrize("cell_size", [0.37, 1.0, 2.5])
+def test_cell_size_changes_work_but_not_the_answer(cell_size):
+    vertices, faces, points = _random_scene(3)
+    dense = dense_wall_pairs(points, vertices[faces], 0.05)
+    pi, ti = WallIndex(vertices, faces, cell_size=cell_size).query(points, 0.05)
+    assert _pair_set(pi, ti) == _pair_set(dense.point_idx, dense.tri_idx)
+
+
+def test_tiny_cell_cap_still_gives_exact_pairs():
+    vertices, faces, points = _random_scene(4)
+    dense = dense_wall_pairs(points, vertices[faces], 0.05)
+    pi, ti = WallIndex(vertices, faces, max_cells=1000).query(points, 0.05)
+    assert _pair_set(pi, ti) == _pair_set(dense.point_idx, dense.tri_idx)
+
+
+@pytest.mark.parametrize("angle", [0.3, 1.7, math.pi])
+def test_rotated_mesh_is_queried_in_its_frame_without_rebuilding(angle):
+    vertices, faces, points = _random_scene(5)
+    index = WallIndex(vertices, faces)
+    rotation, translation = pose_about_axis((0.2, 1.0, -0.3), angle, origin=(0.1, 0.0, 0.2))
+    found = index.pairs(points, 0.05, rotation, translation)
+    moved = vertices @ rotation.T + translation
+    dense = dense_wall_pairs(points, moved[faces], 0.05)
+    assert _pair_set(found.point_idx, found.tri_idx) == _pair_set(dense.point_idx, dense.tri_idx)
+    torch.testing.assert_close(found.closest, dense.closest)  # world frame
+    index.query(points, 0.05)  # and once unrotated
+    assert len(index._grids) == 1  # one grid for the radius, reused for every pose
+
+
+def test_float32_points_on_a_float64_mesh():
+    vertices, faces, points = _random_scene(6)
+    found = WallIndex(vertices, faces).pairs(points.float(), 0.05)
+    dense = dense_wall_pairs(points.float(), vertices[faces].float(), 0.05)
+    assert found.closest.dtype == torch.float32
+    assert _pair_set(found.point_idx, found.tri_idx) == _pair_set(dense.point_idx, dense.tri_idx)
+
+
+def test_work_follows_near_pairs_not_points_times_triangles():
+    vertices, faces, points = _random_scene(7, num_points=2000)
+    radius = 0.03
+    index = WallIndex(vertices, faces)
+    near = len(index.query(points, radius)[0])
+    work = len(index.candidates(points, radius)[0])
+    assert work <= 12 * near + len(points)
+    assert work < 0.02 * len(points) * len(faces)
+
+    # 20,000 far-away triangles add no work for these points.
+    far = trimesh.creation.icosphere(subdivisions=5, radius=0.5)  # 20,480 triangles
+    far.apply_translation((10.0, 0.0, 0.0))
+    big_vertices = torch.cat([vertices, torch.tensor(far.vertices)])
+    big_faces = torch.cat([faces, torch.tensor(far.faces) + len(vertices)])
+    big = WallIndex(big_vertices, big_faces)
+    _, big_tri = big.candidates(points, radius)
+    assert (big_tri < len(faces)).all()  # no far triangle is ever a candidate
+    assert len(big_tri) <= 1.5 * work  # (the grid's origin shifts, so not exactly equal)
+    assert len(big.query(points, radius)[0]) == near
+
+
+def test_points_far_from_every_wall_and_empty_queries():
+    vertices, faces, _ = _random_scene(8)
+    index = WallIndex(vertices, faces)
+    pi, ti = index.query(torch.full((5, 3), 100.0, dtype=torch.float64), 0.1)
+    assert pi.shape == ti.shape == (0,)
+    found = index.pairs(torch.zeros(0, 3, dtype=torch.float64), 0.1)
+    assert found.closest.shape == (0, 3)
+
+
+def test_degenerate_triangles_in_the_mesh_are_handled():
+    vertices = torch.tensor([(0, 0, 0), (1, 0, 0), (2, 0, 0), (0, 1, 0)], dtype=torch.float64)
+    faces = torch.tensor([(0, 1, 2), (0, 0, 0), (0, 1, 3)])  # collinear, a point, a real one
+    points = torch.tensor([(1.5, 0.01, 0.0), (0.0, 0.0, 0.02)], dtype=torch.float64)
+    found = WallIndex(vertices, faces).pairs(points, 0.05)
+    assert _pair_set(found.point_idx, found.tri_idx) == {(0, 0), (1, 0), (1, 1), (1, 2)}
+    assert torch.isfinite(found.closest).all()
+
+
+@pytest.mark.parametrize(
+    ("vertices", "faces", "message"),
+    [
+        (torch.zeros(3, 2), torch.zeros(1, 3, dtype=torch.long), "vertices: expected shape"),
+        (torch.zeros(3, 3), torch.zeros(0, 3, dtype=torch.long), "no triangles"),
+        (torch.zeros(3, 3), torch.tensor([[0, 1, 3]]), r"indices must lie in \[0, 2\]"),
+        (torch.zeros(3, 3), torch.zeros(1, 3), "integer"),
+        (torch.full((3, 3), float("nan")), torch.tensor([[0, 1, 2]]), "NaN or Inf"),
+    ],
+)
+def test_bad_meshes_raise_one_clear_error(vertices, faces, message):
+    with pytest.raises(InputError, match=message):
+        WallIndex(vertices, faces)
+
+
+@pytest.mark.parametrize("radius", [0.0, -1.0, float("nan"), float("inf"), "x"])
+def test_bad_radius_is_rejected(radius):
+    index = WallIndex(torch.eye(3), torch.tensor([[0, 1, 2]]))
+    with pytest.raises(InputError, match="radius"):
+        index.query(torch.zeros(1, 3), radius)
