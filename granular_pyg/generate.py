@@ -1,0 +1,179 @@
+"""``python -m granular_pyg.generate scene=hopper n=30 out=data/hopper``: a LIGGGHTS dataset.
+
+Writes ``<out>/traj_0000.h5 ...`` (one :class:`~granular_pyg.io.Trajectory` each) and
+``<out>/manifest.json`` (scene config, per-trajectory parameters and seeds, train/valid/test
+splits by trajectory, timings). Trajectory ``i`` draws its parameters (from the scene config's
+``ranges``) and its LIGGGHTS seed from ``(seed, i)`` alone, so a run is reproducible and
+resumable: finished files are skipped, and an interrupted trajectory leaves no file (writes are
+atomic). ``jobs`` serial LIGGGHTS runs go at a time.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import shutil
+import time
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+from pathlib import Path
+from typing import Any
+
+import hydra
+import numpy as np
+from omegaconf import DictConfig, OmegaConf
+from tqdm.auto import tqdm
+
+from granular_pyg.dem.simulate import simulate
+from granular_pyg.errors import InputError
+from granular_pyg.io import atomic_write, write_trajectory
+
+__all__ = ["generate", "plan_trajectories", "split_counts"]
+
+
+def split_counts(n: int, fractions: dict[str, float]) -> dict[str, int]:
+    """Trajectories per split: valid and test get ``round(n * f)``, at least one each when
+    ``n >= 3`` and their fraction is positive; train gets the rest."""
+    counts = {}
+    for name in ("valid", "test"):
+        f = float(fractions.get(name, 0.0))
+        counts[name] = max(1 if n >= 3 and f > 0 else 0, round(n * f))
+    counts["train"] = n - counts["valid"] - counts["test"]
+    if counts["train"] < 1:
+        raise InputError(f"splits {dict(fractions)} leave no training trajectory out of n={n}")
+    return counts
+
+
+def _sample(rng: np.random.Generator, low, high):
+    if isinstance(low, int) and isinstance(high, int):
+        return int(rng.integers(low, high + 1))
+    return float(rng.uniform(float(low), float(high)))
+
+
+def plan_trajectories(cfg: DictConfig) -> list[dict[str, Any]]:
+    """One entry per trajectory: file name, split, seed and the scene-builder parameters."""
+    build = OmegaConf.to_container(cfg.scene.build, resolve=True)
+    ranges = OmegaConf.to_container(cfg.scene.get("ranges") or {}, resolve=True)
+    unknown = set(ranges) - set(build)
+    if unknown:
+        raise InputError(
+            f"scene.ranges: {sorted(unknown)} are not parameters of {build['_target_']}; "
+            f"choose from {sorted(k for k in build if not k.startswith('_'))}"
+        )
+    counts = split_counts(int(cfg.n), cfg.splits)
+    splits = ["train"] * counts["train"] + ["valid"] * counts["valid"] + ["test"] * counts["test"]
+    plan = []
+    for i, split in enumerate(splits):
+        rng = np.random.default_rng([int(cfg.seed), i])
+        params = dict(build)
+        for key in sorted(ranges):
+            low, high = ranges[key]
+            params[key] = _sample(rng, low, high)
+        plan.append(
+            {
+                "file": f"traj_{i:04d}.h5",
+                "index": i,
+                "split": split,
+                "seed": int(rng.integers(1, 2**31 - 1)),
+                "params": params,
+            }
+        )
+    return plan
+
+
+def _run_one(entry: dict, cfg: DictConfig, out: Path, slots: queue.Queue) -> dict[str, float]:
+    slot = slots.get()
+    try:
+        start = time.perf_counter()
+        scene = hydra.utils.instantiate(entry["params"], _convert_="all")
+        workdir = out / ".work" / Path(entry["file"]).stem
+        traj, run = simulate(
+            scene,
+            entry["seed"],
+            workdir,
+            keep_workdir=True,
+            mpi_procs=int(cfg.mpi_procs),
+            progress=bool(cfg.progress),
+            progress_position=slot,
+        )
+        traj.metadata |= {"split": entry["split"], "index": entry["index"]}
+        write_trajectory(traj, out / entry["file"], level=int(cfg.compression_level))
+        if not cfg.keep_workdirs:
+            shutil.rmtree(workdir, ignore_errors=True)
+        total = time.perf_counter() - start
+        return {
+            "liggghts_s": run.wall_time_s,
+            "pipeline_s": total,
+            "overhead": (total - run.wall_time_s) / run.wall_time_s,
+            "liggghts_version": run.version,
+        }
+    finally:
+        slots.put(slot)
+
+
+def generate(cfg: DictConfig) -> Path:
+    """Generate (or complete) the dataset described by ``cfg``; returns the manifest's path."""
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plan = plan_trajectories(cfg)
+    todo = [e for e in plan if not (out / e["file"]).exists()]
+    print(f"{cfg.scene.name}: {len(plan) - len(todo)} of {len(plan)} trajectories present in {out}")
+    jobs = max(1, int(cfg.jobs))
+    slots: queue.Queue = queue.Queue()
+    for k in range(jobs):
+        slots.put(k + 1)
+    timings: dict[str, dict] = {}
+    bar = tqdm(
+        total=len(plan),
+        initial=len(plan) - len(todo),
+        desc="trajectories",
+        position=0,
+        disable=not cfg.progress,
+    )
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(_run_one, e, cfg, out, slots): e for e in todo}
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_EXCEPTION)
+            for fut in done:
+                entry = futures[fut]
+                if fut.exception() is not None:
+                    for other in pending:
+                        other.cancel()
+                    raise RuntimeError(
+                        f"trajectory {entry['file']} failed (parameters {entry['params']}); "
+                        f"rerun the same command to resume: {fut.exception()}"
+                    ) from fut.exception()
+                timings[entry["file"]] = fut.result()
+                bar.update(1)
+    bar.close()
+
+    manifest = {
+        "scene": cfg.scene.name,
+        "n": len(plan),
+        "seed": int(cfg.seed),
+        "scene_config": OmegaConf.to_container(cfg.scene, resolve=True),
+        "splits": {
+            s: [e["file"] for e in plan if e["split"] == s] for s in ("train", "valid", "test")
+        },
+        "trajectories": [e | {"timing": timings.get(e["file"])} for e in plan],
+    }
+    path = out / "manifest.json"
+    with atomic_write(path) as fh:
+        json.dump(manifest, fh, indent=1)
+    shutil.rmtree(out / ".work", ignore_errors=True)
+    if timings:
+        lig = sum(t["liggghts_s"] for t in timings.values())
+        total = sum(t["pipeline_s"] for t in timings.values())
+        overhead = 100 * (total - lig) / lig
+        print(f"LIGGGHTS {lig:.1f} s, pipeline {total:.1f} s: overhead {overhead:.1f}%")
+    print(f"manifest: {path}")
+    return path
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="generate")
+def main(cfg: DictConfig) -> None:
+    generate(cfg)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,187 @@
+"""Importing a user's LIGGGHTS run: dumps + STL walls -> Trajectory and HDF5 file."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import trimesh
+
+from granular_pyg.dem import convert
+from granular_pyg.dem.convert import load_stl_wall, trajectory_from_dumps
+from granular_pyg.errors import InputError
+from granular_pyg.io import read_trajectory
+
+DUMP = """\
+ITEM: TIMESTEP
+1000
+ITEM: NUMBER OF ATOMS
+3
+ITEM: BOX BOUNDS ff ff ff
+-0.05 0.05
+-0.02 0.02
+-0.01 0.2
+ITEM: ATOMS id type x y z vx vy vz radius
+3 1 0.01 0.0 0.05 0 0 -0.1 0.0015
+1 1 -0.01 0.005 0.03 0 0 -0.1 0.0015
+2 1 0.0 -0.005 0.04 0 0 -0.1 0.002
+ITEM: TIMESTEP
+1125
+ITEM: NUMBER OF ATOMS
+2
+ITEM: BOX BOUNDS ff ff ff
+-0.05 0.05
+-0.02 0.02
+-0.01 0.2
+ITEM: ATOMS id type x y z vx vy vz radius
+1 1 -0.01 0.005 0.0297 0 0 -0.12 0.0015
+3 1 0.01 0.0 0.0497 0 0 -0.12 0.0015
+"""
+
+
+@pytest.fixture
+def run(tmp_path):
+    """A dump file, an ASCII STL box (12 triangles) and a binary STL plate (2 triangles)."""
+    dump = tmp_path / "dump.liggghts"
+    dump.write_text(DUMP)
+    box = trimesh.creation.box(extents=(0.08, 0.03, 0.15))
+    ascii_stl = tmp_path / "hopper-walls.stl"
+    box.export(ascii_stl, file_type="stl_ascii")
+    plate = trimesh.Trimesh(
+        vertices=[[-0.04, -0.015, 0.0], [0.04, -0.015, 0.0], [0.04, 0.015, 0.0], [-0.04, 0.015, 0]],
+        faces=[[0, 1, 2], [0, 2, 3]],
+    )
+    binary_stl = tmp_path / "lid.stl"
+    plate.export(binary_stl, file_type="stl")
+    return dump, [ascii_stl, binary_stl]
+
+
+def test_stl_files_become_walls_with_their_triangle_counts(run):
+    dump, stls = run
+    traj = trajectory_from_dumps(dump, stls, dem_dt=2e-5)
+    assert [(w.name, len(w.faces)) for w in traj.scene.walls] == [("hopper_walls", 12), ("lid", 2)]
+
+
+def test_stl_triangles_keep_their_corners(run):
+    _, stls = run
+    wall = load_stl_wall(stls[1], "lid")
+    expected = trimesh.load(stls[1], force="mesh", process=False).triangles
+    assert np.array_equal(wall.triangles, expected)
+
+
+def test_ascii_and_binary_stl_are_both_read(run):
+    _, stls = run
+    first_bytes = [p.read_bytes()[:5] for p in stls]
+    walls = [load_stl_wall(p, "w") for p in stls]
+    assert (first_bytes[0], first_bytes[1] != b"solid", [len(w.faces) for w in walls]) == (
+        b"solid",
+        True,
+        [12, 2],
+    )
+
+
+def test_trajectory_holds_the_dump_particles(run):
+    dump, stls = run
+    traj = trajectory_from_dumps(dump, stls, dem_dt=2e-5)
+    summary = (traj.ids.tolist(), traj.times.tolist(), traj.present[:, 1].tolist())
+    assert summary == ([1, 2, 3], [0.0, 125 * 2e-5], [True, False])
+
+
+def test_scene_describes_the_run(run):
+    dump, stls = run
+    scene = trajectory_from_dumps(dump, stls, dem_dt=2e-5, outflow_z=-0.005).scene
+    summary = (
+        scene.name,
+        scene.particles.count,
+        scene.particles.radius,
+        scene.particles.fill_lo,
+        scene.particles.fill_hi,
+        scene.domain_lo,
+        scene.domain_hi,
+        scene.outflow_z,
+        scene.settle_time,
+    )
+    assert summary == (
+        "imported",
+        3,
+        pytest.approx(0.002),
+        (-0.01, -0.005, 0.03),
+        (0.01, 0.005, 0.05),
+        (-0.05, -0.02, -0.005),
+        (0.05, 0.02, 0.2),
+        -0.005,
+        0.0,
+    )
+
+
+def test_scene_times_are_multiples_of_the_dem_step(run):
+    dump, stls = run
+    scene = trajectory_from_dumps(dump, stls, dem_dt=2e-5).scene
+    assert (scene.frame_dt, scene.duration) == (pytest.approx(2.5e-3), pytest.approx(2.5e-3))
+
+
+def test_metadata_records_the_source(run):
+    dump, stls = run
+    metadata = trajectory_from_dumps(dump, stls, dem_dt=2e-5).metadata
+    assert (metadata["source"], metadata["dumps"], metadata["first_timestep"]) == (
+        "imported",
+        str(dump),
+        1000,
+    )
+
+
+def test_outflow_above_the_box_raises(run):
+    dump, stls = run
+    with pytest.raises(InputError, match="outflow_z"):
+        trajectory_from_dumps(dump, stls, dem_dt=2e-5, outflow_z=1.0)
+
+
+def test_empty_stl_raises(run, tmp_path):
+    dump, _ = run
+    empty = tmp_path / "empty.stl"
+    empty.write_text("solid empty\nendsolid empty\n")
+    with pytest.raises(InputError, match=r"empty\.stl"):
+        trajectory_from_dumps(dump, [empty], dem_dt=2e-5)
+
+
+def test_duplicate_stems_get_unique_wall_names(run, tmp_path):
+    dump, stls = run
+    other = tmp_path / "sub"
+    other.mkdir()
+    (other / "lid.stl").write_bytes(stls[1].read_bytes())
+    traj = trajectory_from_dumps(dump, [stls[1], other / "lid.stl"], dem_dt=2e-5)
+    assert [w.name for w in traj.scene.walls] == ["lid", "lid_2"]
+
+
+def test_cli_writes_a_trajectory_file(run, tmp_path, capsys):
+    dump, stls = run
+    out = tmp_path / "traj.h5"
+    convert.main([str(dump), "--stl", *map(str, stls), "--dem-dt", "2e-5", "--out", str(out)])
+    traj = read_trajectory(out)
+    assert (traj.num_frames, traj.num_particles, len(traj.scene.walls)) == (2, 3, 2)
+
+
+def test_cli_prints_a_one_line_summary(run, tmp_path, capsys):
+    dump, stls = run
+    convert.main(
+        [str(dump), "--stl", *map(str, stls), "--dem-dt", "2e-5", "--out", str(tmp_path) + "/t.h5"]
+    )
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and "2 frames x 3 particles" in out
+
+
+def test_cli_reports_bad_input_without_a_traceback(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        convert.main([str(tmp_path / "missing"), "--dem-dt", "2e-5", "--out", "x.h5"])
+    assert "no such dump file" in capsys.readouterr().err
+
+
+def test_python_dash_m_entry_point_runs(run, tmp_path):
+    dump, stls = run
+    out = tmp_path / "cli.h5"
+    args = [str(dump), "--stl", *map(str, stls), "--dem-dt", "2e-5", "--out", str(out)]
+    command = [sys.executable, "-m", "granular_pyg.dem.convert", *args]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    assert (result.returncode, read_trajectory(out).num_frames) == (0, 2), result.stderr
