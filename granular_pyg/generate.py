@@ -160,7 +160,8 @@ def generate(cfg: DictConfig) -> Path:
     path = out / "manifest.json"
     with atomic_write(path) as fh:
         json.dump(manifest, fh, indent=1)
-    shutil.rmtree(out / ".work", ignore_errors=True)
+    if not cfg.keep_workdirs:
+        shutil.rmtree(out / ".work", ignore_errors=True)
     if timings:
         lig = sum(t["liggghts_s"] for t in timings.values())
         total = sum(t["pipeline_s"] for t in timings.values())

@@ -1,0 +1,16 @@
+"""LIGGGHTS: input rendering, running, dump parsing (users' own runs: ``dem.convert``)."""
+
+from granular_pyg.dem.dump import DumpFrame, frames_to_arrays, read_dump
+from granular_pyg.dem.liggghts import DemRun, LiggghtsError, render_input, run_liggghts
+from granular_pyg.dem.simulate import simulate
+
+__all__ = [
+    "DemRun",
+    "DumpFrame",
+    "LiggghtsError",
+    "frames_to_arrays",
+    "read_dump",
+    "render_input",
+    "run_liggghts",
+    "simulate",
+]

@@ -1,0 +1,72 @@
+"""Physical observables engineers check: discharge, centre of mass, dynamic angle of repose."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from granular_pyg.errors import InputError
+
+__all__ = ["centre_of_mass", "discharged_fraction", "dynamic_angle_of_repose"]
+
+
+def discharged_fraction(positions: np.ndarray, outlet_z: float = 0.0) -> np.ndarray:
+    """Fraction of the particles below the outlet or gone (NaN), per frame.
+
+    Args:
+        positions: ``[T, N, 3]`` (m), NaN once a particle has left.
+        outlet_z: height of the outlet (m).
+
+    Returns:
+        ``[T]`` values in ``[0, 1]``.
+    """
+    z = positions[..., 2]
+    return np.mean(np.isnan(z) | (z < outlet_z), axis=1)
+
+
+def centre_of_mass(positions: np.ndarray) -> np.ndarray:
+    """``[T, 3]`` mean position of the particles still present (equal masses), NaN if none."""
+    present = np.isfinite(positions).all(-1, keepdims=True)
+    count = present.sum(1)
+    total = np.where(present, positions, 0.0).sum(1)
+    return np.where(count > 0, total / np.maximum(count, 1), np.nan)
+
+
+def dynamic_angle_of_repose(
+    positions: np.ndarray, axis: int = 1, bins: int = 12, trim: float = 0.15
+) -> float:
+    """Slope (deg) of a drum's free surface: a line fitted to the top particle of each bin.
+
+    Positions are projected onto the plane orthogonal to the drum axis; the bed's horizontal
+    extent (without ``trim`` of it at each end, where the surface curves along the wall) is cut
+    into ``bins`` bins; the highest particle of each bin marks the surface.
+
+    Args:
+        positions: ``[N, 3]`` one frame (m); NaN rows are ignored.
+        axis: index of the drum axis (1 = y); gravity along -z.
+        bins: surface bins.
+        trim: fraction of the bed's width left out at each end.
+
+    Returns:
+        The angle between the fitted surface and the horizontal, in degrees (0-90).
+    """
+    if axis not in (0, 1):
+        raise InputError(f"axis: the drum axis must be horizontal (0 = x or 1 = y), got {axis}")
+    pos = positions[np.isfinite(positions).all(1)]
+    horizontal = 1 - axis
+    if len(pos) < 2 * bins:
+        raise InputError(f"positions: need at least {2 * bins} particles, got {len(pos)}")
+    x, z = pos[:, horizontal], pos[:, 2]
+    lo, hi = np.quantile(x, [trim, 1 - trim])
+    edges = np.linspace(lo, hi, bins + 1)
+    which = np.digitize(x, edges) - 1
+    xs, zs = [], []
+    for b in range(bins):
+        inside = which == b
+        if inside.any():
+            top = np.argmax(np.where(inside, z, -np.inf))
+            xs.append(x[top])
+            zs.append(z[top])
+    slope = np.polyfit(xs, zs, 1)[0]
+    return math.degrees(math.atan(abs(slope)))
