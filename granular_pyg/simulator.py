@@ -1,0 +1,227 @@
+"""The learned simulator: features from the state, the network, and time integration.
+
+**Features are built here and only here**, for training and rollout alike (a train/rollout
+feature mismatch is the classic silent bug of learned simulators). For one time ``t``:
+
+- graph: particles within ``radius`` of each other (both directions) plus one virtual wall node
+  per (particle, triangle) pair within ``radius`` (wall -> particle edges), see
+  :class:`~granular_pyg.transforms.AddWallNodes`;
+- node features ``[3 H + 6 + 2]``: the last ``H`` velocities (finite differences of positions,
+  m/s, normalised by the training statistics; for a wall node the wall's own velocity at the
+  node, repeated), the six normal features of the variant (V1/V2/V3; zeros for particles),
+  and the type one-hot (particle, wall) times ``type_scale``; a wall node's features are
+  multiplied by its weight (1/k with ``wall_weight``);
+- edge features ``[4]`` for an edge ``j -> i``: ``(x_i - x_j) / R`` and ``|x_i - x_j| / R``.
+
+No absolute position enters, so predictions are translation invariant up to rounding.
+Positions are centred on the particles' mean in float64 before the cast to float32, so the
+limit is the precision of the input positions themselves (velocities are differences of
+positions ~1e-4 m apart): with float32 positions the prediction moves by 4e-5 of its size for
+an offset of 1 m but by 5e-3 at 10 m (float32 spacing 1e-6 m there); with float64 positions it
+stays within 1e-6 up to 1e5 m. Tested: float32 at 1 m, float64 at 1 m and 1,000 m. Keep scenes
+near the origin or pass float64 positions.
+
+Integration is semi-implicit Euler with the module's step ``dt`` (s):
+``v_{t+1} = v_t + dt a_t``, ``p_{t+1} = p_t + dt v_{t+1}``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch_geometric.data import Batch, Data
+
+from granular_pyg.errors import InputError, check_tensor
+from granular_pyg.nn import EncodeProcessDecode, Processor
+from granular_pyg.scenes import WallSet
+from granular_pyg.transforms import AddWallNodes, RadiusGraph
+
+__all__ = ["LearnedSimulator"]
+
+NUM_DIMS = 3
+NUM_TYPES = 2  # particle, wall
+NUM_NORMAL_FEATURES = 6
+NUM_EDGE_FEATURES = 4
+
+
+class LearnedSimulator(nn.Module):
+    """Encode-process-decode network over particles and virtual wall nodes.
+
+    Args:
+        processor: the message-passing processor (see ``conf/model/processor/``).
+        radius: connectivity radius ``R`` for particle edges and wall nodes (m).
+        history: number of past velocities ``H`` per particle (5 in the paper).
+        normals: wall normal variant: ``"none"`` (V1), ``"single"`` (V2), ``"both"`` (V3).
+        latent: latent width of encoder, processor and decoder.
+        mlp_layers: hidden layers per MLP.
+        type_scale: factor on the particle/wall one-hot (BGNN: 100).
+        normal_scale: factor on the normal features.
+        wall_weight: weight a particle's ``k`` wall nodes by ``1/k`` (BGNN).
+        dt: time step of one learned step (s): the frame spacing times the time-step multiple.
+        graph_backend: radius-graph backend (``"auto"``, ``"scipy"``, ``"torch_cluster"``).
+        max_num_neighbors: neighbour cap of the radius graph; None sizes it to fit.
+    """
+
+    def __init__(
+        self,
+        processor: Processor,
+        radius: float,
+        history: int = 5,
+        normals: str = "both",
+        latent: int = 128,
+        mlp_layers: int = 2,
+        type_scale: float = 100.0,
+        normal_scale: float = 1.0,
+        wall_weight: bool = True,
+        dt: float = 2.5e-3,
+        graph_backend: str = "auto",
+        max_num_neighbors: int | None = None,
+    ) -> None:
+        super().__init__()
+        if history < 1:
+            raise InputError(f"history: need at least one past velocity, got {history}")
+        if not dt > 0:
+            raise InputError(f"dt: expected a positive time step (s), got {dt!r}")
+        self.radius = float(radius)
+        self.history = int(history)
+        self.normals = normals
+        self.type_scale = float(type_scale)
+        self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
+        self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight)
+        node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES
+        self.model = EncodeProcessDecode(
+            node_in, NUM_EDGE_FEATURES, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
+        )
+        self.register_buffer("dt", torch.tensor(float(dt), dtype=torch.float64))
+        for name, value in (
+            ("vel_mean", 0.0),
+            ("vel_std", 1.0),
+            ("acc_mean", 0.0),
+            ("acc_std", 1.0),
+        ):
+            self.register_buffer(name, torch.full((NUM_DIMS,), value))
+
+    # -- normalisation ----------------------------------------------------------------------
+
+    def set_normalization(
+        self,
+        vel_mean: torch.Tensor,
+        vel_std: torch.Tensor,
+        acc_mean: torch.Tensor,
+        acc_std: torch.Tensor,
+    ) -> None:
+        """Set the statistics (``[3]`` each; m/s and m/s^2) kept in and saved with the module."""
+        for name, value in (
+            ("vel_mean", vel_mean),
+            ("vel_std", vel_std),
+            ("acc_mean", acc_mean),
+            ("acc_std", acc_std),
+        ):
+            value = torch.as_tensor(value, dtype=torch.float32).reshape(NUM_DIMS)
+            if not bool(torch.isfinite(value).all()) or (
+                name.endswith("std") and (value <= 0).any()
+            ):
+                raise InputError(f"{name}: expected finite values (std > 0), got {value.tolist()}")
+            getattr(self, name).copy_(value)
+
+    def velocities(self, pos_seq: torch.Tensor) -> torch.Tensor:
+        """``[N, H, 3]`` finite-difference velocities (m/s, float64) of ``pos_seq [N, H+1, 3]``."""
+        return torch.diff(pos_seq.double(), dim=1) / self.dt
+
+    def target_acceleration(self, pos_seq: torch.Tensor, target_pos: torch.Tensor) -> torch.Tensor:
+        """Normalised acceleration ``[N, 3]`` that takes the last state to ``target_pos``."""
+        last_vel = self.velocities(pos_seq[:, -2:])[:, 0]
+        next_vel = (target_pos.double() - pos_seq[:, -1].double()) / self.dt
+        acc = (next_vel - last_vel) / self.dt
+        return ((acc - self.acc_mean.double()) / self.acc_std.double()).float()
+
+    # -- graph and features -----------------------------------------------------------------
+
+    def build_graph(self, pos_seq: torch.Tensor, walls: WallSet, time: float) -> Data:
+        """The input graph for one state.
+
+        Args:
+            pos_seq: ``[N, H + 1, 3]`` positions of the present particles at the last ``H + 1``
+                steps (m, world frame), oldest first; float32 or float64.
+            walls: the scene's walls.
+            time: recorded time (s) of the last position (sets wall poses).
+
+        Returns:
+            A Data with ``x [N + W, 3H + 8]``, ``edge_index [2, E]``, ``edge_attr [E, 4]``,
+            ``is_wall [N + W]`` and ``num_real = N``, ready to batch.
+        """
+        check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS))
+        data = Data(pos=pos_seq[:, -1], walls=walls, time=float(time))
+        data = self.wall_nodes(self.radius_graph(data))
+        return self._features(data, pos_seq)
+
+    def _features(self, data: Data, pos_seq: torch.Tensor) -> Data:
+        num_real = data.num_real
+        centre = data.pos[:num_real].double().mean(dim=0)
+        rel = (data.pos.double() - centre).float()  # float64 first: translation invariance
+        vel = (self.velocities(pos_seq).float() - self.vel_mean) / self.vel_std
+        wall_vel = (data.wall_vel[num_real:].float() - self.vel_mean) / self.vel_std
+        vel_feat = torch.cat([vel.flatten(1), wall_vel.repeat(1, self.history)])
+        kind = torch.nn.functional.one_hot(data.is_wall.long(), NUM_TYPES).float()
+        x = torch.cat([vel_feat, data.normal_feat.float(), kind * self.type_scale], dim=1)
+        x = x * data.node_weight.float().unsqueeze(1)
+        src, dst = data.edge_index
+        disp = (rel[dst] - rel[src]) / self.radius
+        edge_attr = torch.cat([disp, torch.linalg.vector_norm(disp, dim=1, keepdim=True)], 1)
+        return Data(
+            x=x,
+            edge_index=data.edge_index,
+            edge_attr=edge_attr,
+            is_wall=data.is_wall,
+            num_real=num_real,
+        )
+
+    # -- prediction and integration -----------------------------------------------------------
+
+    def forward(self, graph: Data | Batch) -> torch.Tensor:
+        """Normalised acceleration ``[num real particles, 3]`` of a graph or a batch of graphs."""
+        out = self.model(graph.x, graph.edge_index, graph.edge_attr)
+        return out[~graph.is_wall]
+
+    def predict_acceleration(
+        self, pos_seq: torch.Tensor, walls: WallSet, time: float
+    ) -> torch.Tensor:
+        """Physical acceleration ``[N, 3]`` (m/s^2, float32) of the present particles."""
+        normalised = self(self.build_graph(pos_seq, walls, time))
+        return normalised * self.acc_std + self.acc_mean
+
+    @torch.no_grad()
+    def step(
+        self,
+        pos_seq: torch.Tensor,
+        walls: WallSet,
+        time: float,
+        outflow_z: float | None = None,
+    ) -> torch.Tensor:
+        """Advance one learned step (``dt``).
+
+        Particles with any NaN in ``pos_seq`` have left: they are masked out and stay NaN. A
+        particle whose new centre lies below ``outflow_z`` (m) leaves (becomes NaN).
+
+        Args:
+            pos_seq: ``[N, H + 1, 3]`` positions (m), NaN rows for particles that have left.
+            walls: the scene's walls.
+            time: recorded time (s) of the last position.
+            outflow_z: the scene's outflow height (m), or None.
+
+        Returns:
+            ``[N, 3]`` next positions in the dtype of ``pos_seq``.
+        """
+        check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS), finite=False)
+        present = torch.isfinite(pos_seq).all(dim=2).all(dim=1)
+        out = torch.full_like(pos_seq[:, -1], float("nan"))
+        if not bool(present.any()):
+            return out
+        seq = pos_seq[present]
+        acc = self.predict_acceleration(seq, walls, time).double()
+        last_vel = self.velocities(seq[:, -2:])[:, 0]
+        next_vel = last_vel + self.dt * acc
+        out[present] = (seq[:, -1].double() + self.dt * next_vel).to(pos_seq.dtype)
+        if outflow_z is not None:
+            out[out[:, 2] < outflow_z] = float("nan")
+        return out

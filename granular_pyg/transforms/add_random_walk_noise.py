@@ -1,0 +1,99 @@
+"""Random-walk noise on the position history (GNS), optionally kept out of the walls (BGNN)."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch_geometric.data import Data
+from torch_geometric.transforms import BaseTransform
+
+from granular_pyg.errors import InputError
+
+__all__ = ["AddRandomWalkNoise"]
+
+
+class AddRandomWalkNoise(BaseTransform):
+    r"""Perturb the position history with a random walk, as GNS trains against drift.
+
+    Per particle, the per-frame displacements (velocities times the step) of the ``H``
+    history steps get independent Gaussian increments of std :math:`\sigma / \sqrt{H}`,
+    accumulated over time, so the last velocity's noise has std :math:`\sigma` (m per step);
+    positions integrate that noise from zero at the oldest frame. The target is shifted by the
+    last position's noise (GNS): the model then learns to correct the noisy velocity back onto
+    the true next one.
+
+    With ``walls`` set, a particle whose noisy current position lies on the other side of a
+    wall triangle within ``wall_check`` than its clean position gets fresh noise, up to
+    ``max_tries`` times, then none (BGNN resamples noise that would push a particle through a
+    wall). The check uses the walls' pose at ``data.time``.
+
+    Expects ``data.pos_seq [N, H + 1, 3]`` (m) and optionally ``data.target_pos [N, 3]``;
+    updates both and sets ``data.pos`` to the noisy current position.
+
+    Args:
+        std: :math:`\sigma`, noise std of the last velocity as a displacement per step (m).
+        resample_at_walls: resample noise that crosses a wall (needs ``data.walls``).
+        wall_check: distance (m) within which triangles are checked; default ``100 * std``.
+        max_tries: resampling rounds before giving up (noise zero for those particles).
+        generator: optional ``torch.Generator`` for reproducible noise.
+    """
+
+    def __init__(
+        self,
+        std: float,
+        resample_at_walls: bool = False,
+        wall_check: float | None = None,
+        max_tries: int = 5,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        if not (std >= 0 and math.isfinite(std)):
+            raise InputError(f"std: expected a finite noise level >= 0 (m), got {std!r}")
+        self.std = float(std)
+        self.resample_at_walls = bool(resample_at_walls)
+        self.wall_check = float(wall_check) if wall_check is not None else 100.0 * self.std
+        self.max_tries = int(max_tries)
+        self.generator = generator
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(std={self.std}, resample_at_walls={self.resample_at_walls})"
+
+    def _walk(self, shape, like: torch.Tensor) -> torch.Tensor:
+        """``[N, H + 1, 3]`` position noise: zero at the oldest frame, a random walk after."""
+        num, steps = shape[0], shape[1] - 1
+        step_std = self.std / math.sqrt(max(steps, 1))
+        increments = torch.randn(
+            (num, steps, 3), generator=self.generator, dtype=like.dtype, device=like.device
+        )
+        velocity_noise = torch.cumsum(increments * step_std, dim=1)
+        position_noise = torch.cumsum(velocity_noise, dim=1)
+        return torch.cat([like.new_zeros((num, 1, 3)), position_noise], dim=1)
+
+    def _crossing(self, data: Data, clean: torch.Tensor, noisy: torch.Tensor) -> torch.Tensor:
+        """``[N]`` bool: the noisy position is across a near triangle's plane from the clean."""
+        if self.wall_check <= 0:
+            return torch.zeros(clean.shape[0], dtype=torch.bool)
+        near = data.walls.contacts(clean, self.wall_check, float(data.time))
+        side_clean = ((clean[near.point_idx] - near.closest) * near.normal).sum(-1)
+        side_noisy = ((noisy[near.point_idx] - near.closest) * near.normal).sum(-1)
+        crossed = torch.zeros(clean.shape[0], dtype=torch.bool)
+        crossed[near.point_idx[(side_clean * side_noisy) < 0]] = True
+        return crossed
+
+    def forward(self, data: Data) -> Data:
+        seq = data.pos_seq
+        noise = self._walk(seq.shape, seq)
+        if self.resample_at_walls and self.std > 0:
+            clean = seq[:, -1]
+            redo = self._crossing(data, clean, clean + noise[:, -1])
+            for _ in range(self.max_tries):
+                if not bool(redo.any()):
+                    break
+                noise[redo] = self._walk((int(redo.sum()), seq.shape[1]), seq)
+                redo = redo & self._crossing(data, clean, clean + noise[:, -1])
+            noise[redo] = 0.0
+        data.pos_seq = seq + noise
+        data.pos = data.pos_seq[:, -1]
+        if "target_pos" in data:
+            data.target_pos = data.target_pos + noise[:, -1]
+        return data

@@ -1,0 +1,110 @@
+"""AddRandomWalkNoise and AddWallNodes on real scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from torch_geometric.data import Data
+
+from granular_pyg.errors import InputError
+from granular_pyg.scenes import WallSet, make_hopper
+from granular_pyg.transforms.add_random_walk_noise import AddRandomWalkNoise
+from granular_pyg.transforms.add_wall_nodes import AddWallNodes
+
+
+def _sequence(num=20000, steps=5, seed=0) -> torch.Tensor:
+    g = torch.Generator().manual_seed(seed)
+    start = torch.rand(num, 1, 3, generator=g, dtype=torch.float64) * 0.01
+    vel = torch.tensor([0.0, 0.0, -1e-4], dtype=torch.float64)
+    return start + vel * torch.arange(steps + 1, dtype=torch.float64)[None, :, None]
+
+
+def test_random_walk_noise_has_the_requested_last_velocity_std():
+    seq = _sequence()
+    sigma = 3e-5
+    data = AddRandomWalkNoise(sigma, generator=torch.Generator().manual_seed(1))(
+        Data(pos_seq=seq.clone(), target_pos=seq[:, -1] + 1e-4)
+    )
+    noise = data.pos_seq - seq
+    assert torch.equal(noise[:, 0], torch.zeros_like(noise[:, 0]))  # oldest frame untouched
+    last_velocity_noise = noise[:, -1] - noise[:, -2]
+    assert float(last_velocity_noise.std()) == pytest.approx(sigma, rel=0.03)
+    first_velocity_noise = noise[:, 1] - noise[:, 0]
+    assert float(first_velocity_noise.std()) == pytest.approx(sigma / math.sqrt(5), rel=0.03)
+    # The target moves with the last position's noise (GNS), and pos is the noisy current one.
+    torch.testing.assert_close(data.target_pos, seq[:, -1] + 1e-4 + noise[:, -1])
+    assert torch.equal(data.pos, data.pos_seq[:, -1])
+
+
+def test_zero_noise_changes_nothing():
+    seq = _sequence(100)
+    data = AddRandomWalkNoise(0.0)(Data(pos_seq=seq.clone()))
+    assert torch.equal(data.pos_seq, seq)
+
+
+def test_noise_never_pushes_a_particle_through_a_wall_when_resampling():
+    scene = make_hopper()
+    walls = WallSet(scene)
+    # Particles 0.1 mm above the lid (z = 0): noise of 0.2 mm would often cross it.
+    num = 2000
+    xy = torch.rand(num, 2, generator=torch.Generator().manual_seed(0), dtype=torch.float64) - 0.5
+    pos = torch.cat([xy * torch.tensor([0.015, 0.025]), torch.full((num, 1), 1e-4)], 1)
+    seq = pos[:, None, :].repeat(1, 6, 1)
+
+    def crossed(resample: bool) -> int:
+        noise = AddRandomWalkNoise(
+            2e-4, resample_at_walls=resample, generator=torch.Generator().manual_seed(2)
+        )
+        out = noise(Data(pos_seq=seq.clone(), walls=walls, time=0.0))
+        return int((out.pos[:, 2] < 0).sum())
+
+    assert crossed(False) > 100
+    assert crossed(True) == 0
+
+
+def test_wall_nodes_none_when_no_triangle_is_near():
+    walls = WallSet(make_hopper())
+    data = AddWallNodes(0.005)(Data(pos=torch.tensor([[0.0, 0.0, 0.05]]), walls=walls, time=0.0))
+    assert data.num_real == 1 and data.pos.shape == (1, 3)
+    assert data.edge_index.shape == (2, 0) and not data.is_wall.any()
+
+
+def test_wall_node_features_per_variant_and_the_one_over_k_weight():
+    walls = WallSet(make_hopper())
+    # A particle in the outlet's corner: near the lid, an incline and a side wall.
+    corner = torch.tensor([[0.0095, 0.0145, 0.0008]])
+    out = {}
+    for variant in ("none", "single", "both"):
+        data = AddWallNodes(0.003, variant, normal_scale=2.0, wall_weight=True)(
+            Data(pos=corner, walls=walls, time=0.0)
+        )
+        out[variant] = data
+    k = int(out["both"].is_wall.sum())
+    assert k >= 3
+    assert torch.equal(out["both"].node_weight[1:], torch.full((k,), 1.0 / k))
+    assert (out["none"].normal_feat == 0).all()
+    single = out["single"].normal_feat[1:]
+    assert torch.allclose(single[:, :3].norm(dim=1), torch.full((k,), 2.0))
+    assert (single[:, 3:] == 0).all()
+    both = out["both"].normal_feat[1:]
+    torch.testing.assert_close(both[:, 3:], -both[:, :3])
+    np.testing.assert_array_equal(out["both"].edge_index[1].numpy(), np.zeros(k, dtype=int))
+
+
+def test_removed_lid_gives_no_wall_nodes_after_t_open():
+    scene = make_hopper(t_open=0.05)
+    walls = WallSet(scene)
+    below_lid = Data(pos=torch.tensor([[0.0, 0.0, 0.001]]), walls=walls, time=0.0)
+    assert AddWallNodes(0.003)(below_lid).is_wall.sum() >= 1  # one per lid triangle near
+    later = Data(pos=torch.tensor([[0.0, 0.0, 0.001]]), walls=walls, time=0.06)
+    assert AddWallNodes(0.003)(later).is_wall.sum() == 0
+
+
+def test_bad_settings_are_named():
+    with pytest.raises(InputError, match="normals"):
+        AddWallNodes(0.01, normals="double")
+    with pytest.raises(InputError, match="std"):
+        AddRandomWalkNoise(-1.0)
