@@ -54,7 +54,7 @@ class LearnedSimulator(nn.Module):
         normals: wall normal variant: ``"none"`` (V1), ``"single"`` (V2), ``"both"`` (V3).
         latent: latent width of encoder, processor and decoder.
         mlp_layers: hidden layers per MLP.
-        type_scale: factor on the particle/wall one-hot (BGNN: 100).
+        type_scale: factor on the particle/wall one-hot (BGNN: 100; see the README).
         normal_scale: factor on the normal features.
         wall_weight: weight a particle's ``k`` wall nodes by ``1/k`` (BGNN).
         dt: time step of one learned step (s): the frame spacing times the time-step multiple.
@@ -70,7 +70,7 @@ class LearnedSimulator(nn.Module):
         normals: str = "both",
         latent: int = 128,
         mlp_layers: int = 2,
-        type_scale: float = 100.0,
+        type_scale: float = 1.0,
         normal_scale: float = 1.0,
         wall_weight: bool = True,
         dt: float = 2.5e-3,
@@ -225,3 +225,36 @@ class LearnedSimulator(nn.Module):
         if outflow_z is not None:
             out[out[:, 2] < outflow_z] = float("nan")
         return out
+
+    @torch.no_grad()
+    def rollout(
+        self,
+        pos_seq: torch.Tensor,
+        walls: WallSet,
+        time: float,
+        steps: int,
+        outflow_z: float | None = None,
+        progress: bool = False,
+    ) -> torch.Tensor:
+        """Autoregressive rollout of ``steps`` learned steps from ``pos_seq``.
+
+        Args:
+            pos_seq: ``[N, H + 1, 3]`` initial positions (m), NaN rows for absent particles.
+            walls: the scene's walls (posed at each step's time).
+            time: recorded time (s) of the last initial position.
+            steps: learned steps to take.
+            outflow_z: the scene's outflow height (m), or None.
+            progress: show a progress bar.
+
+        Returns:
+            ``[steps, N, 3]`` predicted positions, NaN for particles that have left.
+        """
+        from tqdm.auto import tqdm
+
+        seq, out = pos_seq, []
+        dt = float(self.dt)
+        for s in tqdm(range(steps), desc="rollout", unit="step", disable=not progress):
+            nxt = self.step(seq, walls, time + s * dt, outflow_z)
+            out.append(nxt)
+            seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
+        return torch.stack(out) if out else pos_seq.new_zeros((0, *pos_seq.shape[::2]))

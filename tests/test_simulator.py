@@ -101,7 +101,7 @@ def test_v1_ignores_normals_and_v2_does_not(hopper):
 def _relative_change(sim, seq, scene, t, offset) -> float:
     base = sim(sim.build_graph(seq, _walls(scene), t))
     moved = sim(sim.build_graph(seq + offset, _walls(scene, shift=offset), t))
-    return float((moved - base).abs().max() / base.abs().max())
+    return float((moved - base).abs().max().detach() / base.abs().max().detach())
 
 
 @pytest.mark.parametrize("offset", [1.0, 1000.0])
@@ -111,8 +111,10 @@ def test_translation_invariance_with_float64_positions(hopper, offset):
 
 
 def test_translation_invariance_with_float32_positions_holds_at_1_m(hopper):
+    # float32 spacing at 1 m is 6e-8 m, ~1e-3 of a frame's displacement here (~1e-4 m): the
+    # velocity features, and so the output, keep about three digits.
     traj, seq, t, _ = hopper
-    assert _relative_change(_model(), seq, traj.scene, t, 1.0) < 1e-4
+    assert _relative_change(_model(), seq, traj.scene, t, 1.0) < 1e-3
 
 
 def test_permutation_equivariance_of_particles_and_invariance_to_triangle_order(hopper):

@@ -1,6 +1,17 @@
-"""File formats: atomic writes, HDF5 trajectories (VTK export arrives later)."""
+"""File formats: atomic writes, HDF5 trajectories, ParaView (VTK) export."""
 
 from granular_pyg.io.atomic import atomic_path, atomic_write
 from granular_pyg.io.trajectory import Trajectory, read_trajectory, write_trajectory
+from granular_pyg.io.vtk import export_paraview, read_vtp, write_pvd, write_vtp
 
-__all__ = ["Trajectory", "atomic_path", "atomic_write", "read_trajectory", "write_trajectory"]
+__all__ = [
+    "Trajectory",
+    "atomic_path",
+    "atomic_write",
+    "export_paraview",
+    "read_trajectory",
+    "read_vtp",
+    "write_pvd",
+    "write_trajectory",
+    "write_vtp",
+]

@@ -1,0 +1,146 @@
+"""Windows of ground-truth trajectories: ``H + 1`` past positions and the target, every k frames.
+
+A window at frame ``t`` with time-step multiple ``k`` holds the positions at frames
+``t - H k, ..., t - k, t`` (so ``H`` velocities over steps of ``k`` frames) and the target at
+``t + k``. Only particles present in all ``H + 2`` frames take part (particles that have left
+through the outflow are masked out); windows without any such particle are skipped.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from granular_pyg.errors import InputError
+from granular_pyg.io import Trajectory, read_trajectory
+from granular_pyg.samples import SAMPLES_DIR
+from granular_pyg.scenes import WallSet
+
+__all__ = ["Window", "WindowDataset", "load_split"]
+
+
+@dataclass
+class Window:
+    """One training sample before graph building.
+
+    Attributes:
+        pos_seq: ``[N, H + 1, 3]`` float32 positions (m), oldest first.
+        target_pos: ``[N, 3]`` float32 position one learned step later (m).
+        walls: the trajectory's walls.
+        time: recorded time (s) of the last position.
+        outflow_z: the scene's outflow height (m) or None.
+        index: ``(trajectory, frame)`` it came from.
+        epoch: training epoch it was drawn for (seeds its noise).
+    """
+
+    pos_seq: torch.Tensor
+    target_pos: torch.Tensor
+    walls: WallSet
+    time: float
+    outflow_z: float | None
+    index: tuple[int, int]
+    epoch: int = 0
+
+
+def load_split(root: str | Path | None, sample: str | None, split: str) -> list[Path]:
+    """Trajectory files of a dataset folder's split (``manifest.json``), or of a bundled sample.
+
+    Args:
+        root: a folder made by ``python -m granular_pyg.generate`` (or None).
+        sample: ``"hopper"`` or ``"drum"`` for the bundled sample when ``root`` is None.
+        split: ``"train"``, ``"valid"`` or ``"test"``.
+    """
+    folder = Path(root) if root is not None else SAMPLES_DIR / str(sample)
+    manifest = folder / "manifest.json"
+    if not manifest.is_file():
+        raise InputError(
+            f"{manifest}: no dataset manifest; make one with "
+            "`python -m granular_pyg.generate scene=... out=<folder>` or set data.sample"
+        )
+    splits = json.loads(manifest.read_text())["splits"]
+    if split not in splits:
+        raise InputError(f"{manifest}: no split {split!r}; it has {sorted(splits)}")
+    return [folder / name for name in splits[split]]
+
+
+class WindowDataset(Dataset):
+    """All windows of a list of trajectories, held in memory.
+
+    Args:
+        trajectories: Trajectory objects or HDF5 paths.
+        history: ``H`` past velocities.
+        step: time-step multiple ``k`` (frames per learned step).
+        extra_steps: further target frames kept after the window (push-forward training):
+            ``future [N, extra_steps, 3]`` at ``t + 2k, ...``.
+    """
+
+    def __init__(
+        self,
+        trajectories: list[Trajectory | str | Path],
+        history: int = 5,
+        step: int = 1,
+        extra_steps: int = 0,
+    ) -> None:
+        if step < 1 or history < 1:
+            raise InputError(f"step ({step}) and history ({history}) must be >= 1")
+        self.trajs = [t if isinstance(t, Trajectory) else read_trajectory(t) for t in trajectories]
+        if not self.trajs:
+            raise InputError("trajectories: the split is empty; give at least one trajectory")
+        for traj in self.trajs:
+            if traj.scene is None:
+                raise InputError("trajectories: a training trajectory needs its Scene (walls)")
+        self.walls = [WallSet(traj.scene) for traj in self.trajs]
+        self.history, self.step, self.extra_steps = int(history), int(step), int(extra_steps)
+        span_before, span_after = self.history * self.step, (1 + self.extra_steps) * self.step
+        self.index: list[tuple[int, int]] = []
+        for i, traj in enumerate(self.trajs):
+            present = traj.present
+            for t in range(span_before, traj.num_frames - span_after):
+                frames = self._frames(t)
+                if present[frames].all(axis=0).any():
+                    self.index.append((i, t))
+        if not self.index:
+            raise InputError(
+                f"no window of {self.history + 2 + self.extra_steps} frames (step {self.step}) "
+                "has a particle present throughout: use longer trajectories or a smaller step"
+            )
+
+    def _frames(self, t: int) -> np.ndarray:
+        first = t - self.history * self.step
+        last = t + (1 + self.extra_steps) * self.step
+        return np.arange(first, last + 1, self.step)
+
+    @property
+    def frame_dt(self) -> float:
+        """Recorded frame spacing (s) of the first trajectory."""
+        return self.trajs[0].frame_dt
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, item: int | tuple[int, int]) -> Window:
+        """Window ``item``, or ``(epoch, item)`` as :class:`EpochSampler` draws them."""
+        epoch, item = item if isinstance(item, tuple) else (0, item)
+        i, t = self.index[item]
+        traj = self.trajs[i]
+        frames = self._frames(t)
+        keep = traj.present[frames].all(axis=0)
+        window = torch.from_numpy(traj.positions[frames][:, keep]).permute(1, 0, 2)
+        h = self.history + 1
+        sample = Window(
+            pos_seq=window[:, :h].contiguous(),
+            target_pos=window[:, h].contiguous(),
+            walls=self.walls[i],
+            time=float(traj.times[t]),
+            outflow_z=traj.scene.outflow_z,
+            index=(i, t),
+            epoch=int(epoch),
+        )
+        if self.extra_steps:
+            sample.future = window[:, h + 1 :].contiguous()  # type: ignore[attr-defined]
+        return sample

@@ -1,0 +1,161 @@
+"""Using a trained model: load it from a checkpoint and roll it out over a Trajectory's Scene.
+
+A rollout starts from the first ``H + 1`` ground-truth states (every ``k``-th frame, ``k`` the
+time-step multiple the model was trained with), then feeds its own predictions back. The walls
+follow the Scene (the drum rotates, the hopper's lid is removed at ``t_open``) and particles
+that fall below the Scene's ``outflow_z`` leave, exactly as in LIGGGHTS. The result is a
+:class:`~granular_pyg.io.Trajectory` like the ground truth, with one frame per learned step, so
+every metric, plot and export takes both.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import torch
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from granular_pyg.errors import InputError
+from granular_pyg.io import Trajectory
+from granular_pyg.scenes import WallSet
+from granular_pyg.simulator import LearnedSimulator
+
+__all__ = ["load_simulator", "matching_frames", "rollout_trajectory", "time_step_multiple"]
+
+
+def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[LearnedSimulator, dict]:
+    """The trained simulator of a training checkpoint (``checkpoints/*.ckpt``), in eval mode.
+
+    Args:
+        path: a checkpoint written by ``python -m granular_pyg.train``.
+        map_location: device for the weights.
+
+    Returns:
+        ``(simulator, config)``: the model with its weights, normalisation statistics and ``dt``,
+        and the training run's resolved config (a dict).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"ckpt: no checkpoint at {path}; pass a file from <run>/checkpoints/")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as exc:  # torch raises several types for corrupt files
+        raise InputError(f"{path}: not a readable checkpoint ({exc}); was it truncated?") from exc
+    config = ckpt.get("config") if isinstance(ckpt, dict) else None
+    if not config or "model" not in config or "state_dict" not in ckpt:
+        raise InputError(
+            f"{path}: not a granular_pyg training checkpoint (no config or state_dict); "
+            "train one with `python -m granular_pyg.train`"
+        )
+    sim = instantiate(OmegaConf.create(config["model"]))
+    prefix = "sim."
+    state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
+    missing, unexpected = sim.load_state_dict(state, strict=False)
+    if missing or unexpected:
+        raise InputError(
+            f"{path}: weights do not fit the model of its config (missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]})"
+        )
+    return sim.eval(), config
+
+
+def time_step_multiple(sim: LearnedSimulator, frame_dt: float) -> int:
+    """Saved frames per learned step: ``sim.dt / frame_dt``, which must be a whole number."""
+    ratio = float(sim.dt) / frame_dt
+    k = round(ratio)
+    if k < 1 or abs(ratio - k) > 1e-6 * max(1.0, ratio):
+        raise InputError(
+            f"the model's step dt = {float(sim.dt):g} s is not a multiple of the trajectory's "
+            f"frame spacing {frame_dt:g} s; roll out on data recorded every dt / k seconds"
+        )
+    return k
+
+
+def rollout_trajectory(
+    sim: LearnedSimulator,
+    truth: Trajectory,
+    steps: int | None = None,
+    start_frame: int = 0,
+    progress: bool = True,
+    dtype: torch.dtype = torch.float32,
+) -> Trajectory:
+    """Roll ``sim`` out over ``truth``'s Scene from its ground-truth initial states.
+
+    Args:
+        sim: a trained simulator.
+        truth: the ground truth; its Scene gives walls, their motion and the outflow.
+        steps: learned steps to predict; None: as many as ``truth`` has frames for.
+        start_frame: the frame of the oldest initial state.
+        progress: show a progress bar.
+        dtype: position dtype of the rollout (float32, or float64 for precision studies).
+
+    Returns:
+        A Trajectory with ``H + 1 + steps`` frames every ``k`` saved frames from
+        ``start_frame``: the ``H + 1`` initial states copied from ``truth``, then the
+        predictions (NaN for particles that have left); velocities are backward differences
+        (m/s); metadata records the rollout's settings.
+    """
+    if truth.scene is None:
+        raise InputError("truth: a rollout needs the trajectory's Scene (walls); it has none")
+    k = time_step_multiple(sim, truth.frame_dt)
+    history = sim.history
+    initial = np.arange(start_frame, start_frame + (history + 1) * k, k)
+    if start_frame < 0 or initial[-1] >= truth.num_frames:
+        raise InputError(
+            f"start_frame: {start_frame} leaves fewer than {history + 1} initial frames "
+            f"(every {k}) in a trajectory of {truth.num_frames} frames"
+        )
+    available = (truth.num_frames - 1 - initial[-1]) // k
+    steps = available if steps is None else int(steps)
+    if steps < 0:
+        raise InputError(f"steps: expected a non-negative number of steps, got {steps}")
+    seq = torch.from_numpy(truth.positions[initial]).to(sim.dt.device, dtype)
+    seq = seq.permute(1, 0, 2).contiguous()
+    dt = float(sim.dt)
+    t0 = float(truth.times[initial[-1]])
+    pred = sim.rollout(
+        seq, WallSet(truth.scene), t0, steps, truth.scene.outflow_z, progress=progress
+    )
+    positions = np.concatenate([truth.positions[initial], pred.float().cpu().numpy()])
+    velocities = np.full_like(positions, np.nan)
+    velocities[: history + 1] = truth.velocities[initial]
+    velocities[history + 1 :] = np.diff(positions[history:], axis=0) / dt
+    times = float(truth.times[start_frame]) + dt * np.arange(len(positions))
+    metadata = {
+        "source": "granular_pyg.rollout",
+        "truth_metadata": truth.metadata,
+        "time_step_multiple": k,
+        "start_frame": int(start_frame),
+        "initial_frames": int(history + 1),
+        "steps": int(steps),
+        "dt": dt,
+        "dtype": str(dtype).removeprefix("torch."),
+    }
+    return dataclasses.replace(
+        truth,
+        positions=positions,
+        velocities=velocities,
+        times=times,
+        metadata=metadata,
+    )
+
+
+def matching_frames(truth: Trajectory, pred: Trajectory) -> np.ndarray:
+    """Indices of ``truth``'s frames at ``pred``'s times (a rollout every ``k`` frames).
+
+    Raises:
+        InputError: if a time of ``pred`` is not a frame of ``truth``.
+    """
+    idx = np.searchsorted(truth.times, pred.times - 1e-9 * truth.frame_dt)
+    idx = np.clip(idx, 0, truth.num_frames - 1)
+    bad = np.abs(truth.times[idx] - pred.times) > 1e-6 * truth.frame_dt
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"pred: its frame {first} (t = {pred.times[first]:.6g} s) is not a frame of the "
+            "ground truth; compare a rollout with the trajectory it was made from"
+        )
+    return idx

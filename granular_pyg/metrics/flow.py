@@ -1,0 +1,256 @@
+"""Flow observables on positions ``[T, N, 3]`` (m): mixing, flow profiles, discharge, leakage.
+
+Every function is pure NumPy and takes NaN rows as particles that have left the scene.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from granular_pyg.errors import InputError
+from granular_pyg.scenes import Scene
+
+__all__ = [
+    "discharge_rate",
+    "flow_profile",
+    "leaked_mask",
+    "leaked_particles",
+    "mixing_classes",
+    "mixing_entropy",
+    "mixing_entropy_curve",
+    "position_mse",
+]
+
+
+def _check_positions(name: str, positions: np.ndarray, ndim: int = 3) -> np.ndarray:
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.ndim != ndim or positions.shape[-1] != 3:
+        want = "[T, N, 3]" if ndim == 3 else "[N, 3]"
+        raise InputError(f"{name}: expected positions {want}, got shape {list(positions.shape)}")
+    return positions
+
+
+def position_mse(truth: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """``[T]`` mean squared position error (m^2) over the particles present in both, NaN if none."""
+    truth, pred = _check_positions("truth", truth), _check_positions("pred", pred)
+    if truth.shape != pred.shape:
+        raise InputError(f"pred: shape {pred.shape} differs from the truth's {truth.shape}")
+    both = np.isfinite(truth).all(-1) & np.isfinite(pred).all(-1)
+    sq = np.where(both, ((truth - pred) ** 2).sum(-1) / 3.0, 0.0)
+    count = both.sum(1)
+    return np.where(count > 0, sq.sum(1) / np.maximum(count, 1), np.nan)
+
+
+def mixing_classes(positions: np.ndarray, frame: int = 30, axis: int = 2) -> np.ndarray:
+    """The paper's two mixing classes: ``+1`` above, ``-1`` below the median of one coordinate.
+
+    Args:
+        positions: ``[T, N, 3]`` (m).
+        frame: the frame ``t0`` at which the classes are fixed (paper: 30).
+        axis: the coordinate that splits them (0 = x, 2 = z).
+
+    Returns:
+        ``[N]`` int8 in ``{+1, -1}``, 0 for particles absent at ``frame``.
+    """
+    positions = _check_positions("positions", positions)
+    if not 0 <= frame < len(positions):
+        raise InputError(f"frame: {frame} is outside the trajectory's {len(positions)} frames")
+    coord = positions[frame, :, axis]
+    present = np.isfinite(coord)
+    if not present.any():
+        raise InputError(f"positions: no particle is present at frame {frame}")
+    threshold = np.median(coord[present])
+    classes = np.where(coord > threshold, 1, -1).astype(np.int8)
+    classes[~present] = 0
+    return classes
+
+
+def mixing_entropy(positions: np.ndarray, classes: np.ndarray, bins: int = 9) -> float:
+    r"""The paper's mixing entropy (appendix) of one frame, 0 (segregated) to log 2 (mixed).
+
+    The particles' bounding box is cut into ``bins^3`` cells; with :math:`f_\pm` the fraction of
+    each class in a cell, :math:`s = -f_+ \log f_+ - f_- \log f_-` and
+    :math:`S = \sum n_{cell} s_{cell} / \sum n_{cell}` (natural log, ``0 log 0 = 0``).
+
+    Args:
+        positions: ``[N, 3]`` (m); NaN rows and class-0 particles are left out.
+        classes: ``[N]`` in ``{+1, -1, 0}`` from :func:`mixing_classes`.
+        bins: cells per axis (paper: 9).
+
+    Returns:
+        ``S`` (nats), NaN when no classified particle is present.
+    """
+    positions = _check_positions("positions", positions, ndim=2)
+    classes = np.asarray(classes)
+    if classes.shape != positions.shape[:1]:
+        raise InputError(f"classes: expected shape [{len(positions)}], got {list(classes.shape)}")
+    keep = np.isfinite(positions).all(1) & (classes != 0)
+    pos, cls = positions[keep], classes[keep]
+    if len(pos) == 0:
+        return float("nan")
+    lo, hi = pos.min(0), pos.max(0)
+    span = np.where(hi > lo, hi - lo, 1.0)
+    cell = np.clip(((pos - lo) / span * bins).astype(np.int64), 0, bins - 1)
+    flat = (cell[:, 0] * bins + cell[:, 1]) * bins + cell[:, 2]
+    plus = np.bincount(flat[cls > 0], minlength=bins**3).astype(np.float64)
+    minus = np.bincount(flat[cls < 0], minlength=bins**3).astype(np.float64)
+    n = plus + minus
+    occupied = n > 0
+    f_plus, f_minus = plus[occupied] / n[occupied], minus[occupied] / n[occupied]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -np.nan_to_num(f_plus * np.log(f_plus)) - np.nan_to_num(f_minus * np.log(f_minus))
+    return float((n[occupied] * s).sum() / n[occupied].sum())
+
+
+def mixing_entropy_curve(positions: np.ndarray, classes: np.ndarray, bins: int = 9) -> np.ndarray:
+    """``[T]`` :func:`mixing_entropy` of every frame."""
+    positions = _check_positions("positions", positions)
+    return np.array([mixing_entropy(frame, classes, bins) for frame in positions])
+
+
+def flow_profile(
+    positions: np.ndarray,
+    velocities: np.ndarray,
+    z_bins: int = 19,
+    z_range: tuple[float, float] | None = None,
+    component: int = 2,
+) -> np.ndarray:
+    """Mean velocity per height bin and frame (the paper's flow profiles).
+
+    Args:
+        positions: ``[T, N, 3]`` (m).
+        velocities: ``[T, N, 3]`` (m/s).
+        z_bins: number of bins in z (paper: 19).
+        z_range: ``(lo, hi)`` (m); default the range of all finite z.
+        component: velocity component averaged (2 = vertical).
+
+    Returns:
+        ``[T, z_bins]`` mean velocity (m/s), NaN in empty bins.
+    """
+    positions = _check_positions("positions", positions)
+    velocities = _check_positions("velocities", velocities)
+    if velocities.shape != positions.shape:
+        raise InputError(f"velocities: shape {velocities.shape} differs from {positions.shape}")
+    z, v = positions[..., 2], velocities[..., component]
+    ok = np.isfinite(z) & np.isfinite(v)
+    if z_range is None:
+        if not ok.any():
+            raise InputError("positions: no finite particle to bin")
+        z_range = (float(z[ok].min()), float(z[ok].max()))
+    lo, hi = z_range
+    width = (hi - lo) / z_bins if hi > lo else 1.0
+    which = np.clip(np.floor((np.where(ok, z, lo) - lo) / width), 0, z_bins - 1).astype(np.int64)
+    which = which + z_bins * np.arange(len(z))[:, None]
+    total = np.bincount(which[ok], weights=v[ok], minlength=len(z) * z_bins)
+    count = np.bincount(which[ok], minlength=len(z) * z_bins)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (total / count).reshape(len(z), z_bins)
+
+
+def discharge_rate(
+    times: np.ndarray,
+    positions: np.ndarray,
+    outlet_z: float,
+    mass: np.ndarray,
+    window: tuple[float, float] = (0.2, 0.8),
+) -> tuple[float, tuple[float, float]]:
+    """Mass flow rate (kg/s) through the outlet: a line fitted to the discharged mass.
+
+    The discharged mass (particles below ``outlet_z`` or gone) is fitted against time between the
+    moments ``window[0]`` and ``window[1]`` of the final discharged mass, the steady part of the
+    discharge (Beverloo regime), leaving out the start-up and the last particles.
+
+    Args:
+        times: ``[T]`` (s).
+        positions: ``[T, N, 3]`` (m), NaN once gone.
+        outlet_z: outlet height (m).
+        mass: ``[N]`` particle masses (kg).
+        window: fractions of the final discharged mass that bound the fit.
+
+    Returns:
+        ``(rate kg/s, (t_start, t_end) s)`` of the fit.
+
+    Raises:
+        InputError: when fewer than three frames lie in the window (too little discharge).
+    """
+    positions = _check_positions("positions", positions)
+    times = np.asarray(times, dtype=np.float64)
+    mass = np.asarray(mass, dtype=np.float64)
+    if times.shape != positions.shape[:1] or mass.shape != positions.shape[1:2]:
+        raise InputError(
+            f"times {times.shape} / mass {mass.shape} do not fit positions {positions.shape}"
+        )
+    z = positions[..., 2]
+    out = np.isnan(z) | (z < outlet_z)
+    discharged = (out * mass).sum(1)
+    final = discharged[-1]
+    inside = (discharged >= window[0] * final) & (discharged <= window[1] * final)
+    if final <= 0 or inside.sum() < 3:
+        raise InputError(
+            "positions: too little discharge for a flow rate (fewer than 3 frames between "
+            f"{window[0]:.0%} and {window[1]:.0%} of the discharged mass); roll out longer"
+        )
+    t, m = times[inside], discharged[inside]
+    rate = float(np.polyfit(t, m, 1)[0])
+    return rate, (float(t[0]), float(t[-1]))
+
+
+def leaked_mask(
+    positions: np.ndarray, scene: Scene, times: np.ndarray, tolerance: float = 0.0
+) -> np.ndarray:
+    """``[T, N]`` bool: particle centres outside the container, more than ``tolerance`` (m).
+
+    A centre has leaked when it lies outside the scene's box or beyond a wall of the container:
+    for the ``drum`` farther from the axis than its radius or past its end caps; for the
+    ``hopper`` outside the V or the front/back walls above the outlet, or below the outlet while
+    the lid is still there. Other scenes use the box only. Particles that have left (NaN) and
+    hopper particles falling below an open outlet have not leaked.
+    """
+    positions = _check_positions("positions", positions)
+    times = np.asarray(times, dtype=np.float64)
+    if times.shape != positions.shape[:1]:
+        raise InputError(f"times: expected shape [{len(positions)}], got {list(times.shape)}")
+    x, y, z = np.moveaxis(positions, -1, 0)
+    present = np.isfinite(positions).all(-1)
+    lo = np.asarray(scene.domain_lo) - tolerance
+    hi = np.asarray(scene.domain_hi) + tolerance
+    with np.errstate(invalid="ignore"):
+        out = ((positions < lo) | (positions > hi)).any(-1)
+        p = scene.params
+        if scene.name == "drum":
+            out |= np.hypot(x, z) > p["drum_radius"] + tolerance
+            out |= np.abs(y) > p["length"] / 2 + tolerance
+        elif scene.name == "hopper":
+            tan_a = math.tan(math.radians(p["alpha_deg"]))
+            half_width = p["opening"] / 2 + np.maximum(z, 0.0) / tan_a
+            above = z >= 0
+            out |= above & (np.abs(x) > half_width + tolerance / math.sin(math.atan(tan_a)))
+            out |= above & (np.abs(y) > p["depth"] / 2 + tolerance)
+            lid_on = times < p["t_open"]
+            out |= lid_on[:, None] & (z < -tolerance)
+    return out & present
+
+
+def leaked_particles(
+    positions: np.ndarray, scene: Scene, times: np.ndarray, radii: np.ndarray | None = None
+) -> int:
+    """Number of particles that were outside the container in any frame.
+
+    A particle counts when its centre is beyond a wall by more than its radius (a particle
+    wholly through the wall); see :func:`leaked_mask`. ``radii`` ``[N]`` (m) default to 0.
+    """
+    positions = _check_positions("positions", positions)
+    tol = 0.0 if radii is None else np.asarray(radii, dtype=np.float64)
+    if np.ndim(tol) == 0:
+        return int(leaked_mask(positions, scene, times, float(tol)).any(0).sum())
+    # Per-particle tolerance: test with the smallest, then keep those past their own radius.
+    mask = leaked_mask(positions, scene, times, 0.0)
+    if not mask.any():
+        return 0
+    deep = np.zeros(positions.shape[1], dtype=bool)
+    for r in np.unique(tol):
+        cols = tol == r
+        deep[cols] = leaked_mask(positions[:, cols], scene, times, float(r)).any(0)
+    return int(deep.sum())

@@ -1,0 +1,116 @@
+"""``python -m granular_pyg.train model=v3``: train a learned simulator (Hydra + Lightning).
+
+Outputs (run folder ``outputs/train/<time>/``, or ``multirun/train/<time>/<n>_<overrides>/``):
+``checkpoints/`` (``last.ckpt`` + periodic ones), ``tensorboard/`` (losses, validation rollout
+metrics and figures), ``.hydra/`` (the composed config). ``ckpt_path=<file>`` resumes exactly.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+import lightning as L
+import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.utils import instantiate
+from omegaconf import DictConfig, OmegaConf
+
+from granular_pyg.errors import InputError
+from granular_pyg.training import RolloutValidation, SimulatorModule
+
+__all__ = ["train"]
+
+#: Config sections that must match between a checkpoint and the run that resumes it.
+RESUME_KEYS = ("model", "data")
+
+
+def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
+    path = Path(ckpt_path)
+    if not path.is_file():
+        raise InputError(f"ckpt_path: no checkpoint at {path}")
+    saved = torch.load(path, map_location="cpu", weights_only=False).get("config")
+    if saved is None:
+        return
+    now = OmegaConf.to_container(cfg, resolve=True)
+    differ = []
+    for section in RESUME_KEYS:
+        old, new = _flatten(saved.get(section, {})), _flatten(now.get(section, {}))
+        differ += [
+            f"{section}.{k}: {old.get(k)!r} -> {new.get(k)!r}"
+            for k in sorted(set(old) | set(new))
+            if old.get(k) != new.get(k)
+        ]
+    if differ:
+        raise InputError(
+            f"{path} was trained with a different config; these keys differ:\n  "
+            + "\n  ".join(differ)
+            + "\nresume with the same model/data overrides"
+        )
+
+
+def _flatten(tree, prefix: str = "") -> dict:
+    if not isinstance(tree, dict):
+        return {prefix: tree}
+    out = {}
+    for key, value in tree.items():
+        out |= _flatten(value, f"{prefix}.{key}" if prefix else str(key))
+    return out
+
+
+class _SaveConfig(L.Callback):
+    def __init__(self, cfg: DictConfig) -> None:
+        self.config = OmegaConf.to_container(cfg, resolve=True)
+
+    def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
+        checkpoint["config"] = self.config
+
+
+def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float]:
+    """Train as ``cfg`` says; returns the final logged metrics (``train/loss``, ``val/loss``...).
+
+    Args:
+        cfg: the composed ``conf/train.yaml``.
+        out_dir: run folder; the Hydra run folder when called from the command line.
+    """
+    out = Path(out_dir or HydraConfig.get().runtime.output_dir)
+    if cfg.ckpt_path:
+        _check_resume(cfg.ckpt_path, cfg)
+    L.seed_everything(cfg.seed, workers=True)
+    torch.set_num_threads(cfg.threads)
+    sim = instantiate(cfg.model)
+    datamodule = instantiate(cfg.data)
+    datamodule.attach(sim)
+    module = SimulatorModule(sim, **cfg.optim, **cfg.push_forward)
+    logger = instantiate(cfg.logger, save_dir=str(out)) if cfg.logger else False
+    callbacks = [
+        L.pytorch.callbacks.ModelCheckpoint(dirpath=out / "checkpoints", **cfg.checkpoint),
+        RolloutValidation(**cfg.rollout_validation),
+        _SaveConfig(cfg),
+    ]
+    if logger:
+        callbacks.append(L.pytorch.callbacks.LearningRateMonitor(logging_interval="step"))
+    trainer = instantiate(
+        cfg.trainer, logger=logger, callbacks=callbacks, default_root_dir=str(out)
+    )
+    trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.ckpt_path)
+    metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}
+    if trainer.is_global_zero:
+        print(f"run folder: {out}")
+        print(f"checkpoints: {out / 'checkpoints'}")
+        if logger:
+            print(f"TensorBoard: tensorboard --logdir {out / 'tensorboard'}")
+        for name in ("train/loss", "val/loss", "val_rollout/emd"):
+            if name in metrics:
+                print(f"{name}: {metrics[name]:.4g}")
+    return metrics
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
+def main(cfg: DictConfig) -> float | None:
+    metrics = train(cfg)
+    return metrics.get("val/loss")
+
+
+if __name__ == "__main__":
+    main()

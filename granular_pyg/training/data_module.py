@@ -1,0 +1,181 @@
+"""TrajectoryDataModule: windows of the HDF5 trajectories, as batches of graphs."""
+
+from __future__ import annotations
+
+import zlib
+from pathlib import Path
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, Sampler
+from torch_geometric.data import Batch, Data
+
+from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute_statistics
+from granular_pyg.data.windows import load_split
+from granular_pyg.errors import InputError
+from granular_pyg.simulator import LearnedSimulator
+from granular_pyg.transforms import AddRandomWalkNoise
+
+__all__ = ["EpochSampler", "TrajectoryDataModule"]
+
+
+class EpochSampler(Sampler[tuple[int, int]]):
+    """A permutation (or random subset) of the windows that depends on ``(seed, epoch)`` only,
+    so a resumed run sees the same order. Yields ``(epoch, window)`` pairs so that each
+    window's noise can depend on the epoch too. Lightning calls :meth:`set_epoch`; under DDP it
+    wraps this sampler and gives each rank its share."""
+
+    def __init__(self, size: int, num_samples: int | None, seed: int, shuffle: bool) -> None:
+        self.size, self.seed, self.shuffle = size, seed, shuffle
+        self.num_samples = size if num_samples is None else int(num_samples)
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return self.num_samples
+
+    def __iter__(self):
+        if not self.shuffle:
+            order = list(range(min(self.size, self.num_samples)))
+        else:
+            g = torch.Generator().manual_seed(self.seed * 1_000_003 + self.epoch)
+            reps = -(-self.num_samples // self.size)
+            perms = torch.cat([torch.randperm(self.size, generator=g) for _ in range(reps)])
+            order = perms[: self.num_samples].tolist()
+        return iter([(self.epoch, i) for i in order])
+
+
+class _Collate:
+    """Windows -> one Batch of graphs (runs in the loader's worker processes).
+
+    Noise (training only) and features come from the simulator's own ``build_graph`` and
+    ``target_acceleration``, the one place features are built. The noise of a window is seeded
+    by ``(seed, epoch, window)``, so it does not depend on workers or on resuming.
+    """
+
+    def __init__(self, sim: LearnedSimulator, noise_std: float, resample: bool, seed: int):
+        self.sim, self.noise_std, self.resample, self.seed = sim, noise_std, resample, seed
+
+    def __call__(self, windows: list[Window]) -> Batch:
+        graphs = []
+        for w in windows:
+            pos_seq, target = w.pos_seq, w.target_pos
+            if self.noise_std > 0:
+                key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
+                noise = AddRandomWalkNoise(
+                    self.noise_std, self.resample, generator=torch.Generator().manual_seed(key)
+                )
+                data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
+                pos_seq, target = data.pos_seq, data.target_pos
+            with torch.no_grad():
+                graph = self.sim.build_graph(pos_seq, w.walls, w.time)
+                graph.y = self.sim.target_acceleration(pos_seq, target)
+            graphs.append(graph)
+        batch = Batch.from_data_list(graphs)
+        batch.windows = windows  # raw windows, for push-forward training
+        return batch
+
+
+class TrajectoryDataModule(L.LightningDataModule):
+    """Windows of trajectories (H past velocities + target every ``step`` frames), split by
+    trajectory, with normalisation statistics from the training split.
+
+    Args:
+        root: dataset folder with ``manifest.json`` (from ``python -m granular_pyg.generate``);
+            None to use the bundled ``sample``.
+        sample: ``"hopper"`` or ``"drum"`` (used when ``root`` is None).
+        history: past velocities ``H`` (must match the model).
+        step: time-step multiple ``k``: one learned step spans ``k`` saved frames.
+        batch_size: windows per batch.
+        num_workers: loader worker processes (0: build graphs in the main process).
+        noise_std: random-walk noise on the training inputs (m per step); the statistics'
+            stds are inflated by it.
+        resample_noise_at_walls: resample noise that would cross a wall (BGNN).
+        train_samples_per_epoch: windows drawn per epoch (None: all of them once).
+        val_samples: validation windows per epoch (None: all).
+        push_forward_steps: extra future frames kept per window for push-forward training.
+        trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
+        seed: seed of the window order and of the noise.
+    """
+
+    def __init__(
+        self,
+        root: str | None = None,
+        sample: str | None = "hopper",
+        history: int = 5,
+        step: int = 1,
+        batch_size: int = 2,
+        num_workers: int = 0,
+        noise_std: float = 0.0,
+        resample_noise_at_walls: bool = True,
+        train_samples_per_epoch: int | None = None,
+        val_samples: int | None = None,
+        push_forward_steps: int = 0,
+        trajectories: dict | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__()
+        if root is None and sample is None:
+            raise InputError("data: set data.root (a dataset folder) or data.sample")
+        self.root, self.sample = root, sample
+        self.history, self.step = int(history), int(step)
+        self.batch_size, self.num_workers = int(batch_size), int(num_workers)
+        self.noise_std, self.resample = float(noise_std), bool(resample_noise_at_walls)
+        self.train_samples, self.val_samples = train_samples_per_epoch, val_samples
+        self.push_forward_steps = int(push_forward_steps)
+        self.trajectories = trajectories
+        self.seed = int(seed)
+        self.sim: LearnedSimulator | None = None
+        self.stats: NormalizationStats | None = None
+
+    def _files(self, split: str) -> list[Path]:
+        if self.trajectories and split in self.trajectories:
+            return [Path(p) for p in self.trajectories[split]]
+        return load_split(self.root, self.sample, split)
+
+    def setup(self, stage: str | None = None) -> None:
+        if getattr(self, "train_set", None) is not None:
+            return
+        self.train_set = WindowDataset(
+            self._files("train"), self.history, self.step, extra_steps=self.push_forward_steps
+        )
+        self.val_set = WindowDataset(self._files("valid"), self.history, self.step)
+        self.stats = compute_statistics(self.train_set.trajs, self.step, self.noise_std)
+
+    @property
+    def dt(self) -> float:
+        """Time of one learned step (s): the frame spacing times ``step``."""
+        return self.step * self.train_set.frame_dt
+
+    def attach(self, sim: LearnedSimulator) -> None:
+        """Give ``sim`` this data's statistics and step, and build graphs with it."""
+        self.setup()
+        if sim.history != self.history:
+            raise InputError(f"model.history ({sim.history}) != data.history ({self.history})")
+        sim.set_normalization(
+            self.stats.vel_mean, self.stats.vel_std, self.stats.acc_mean, self.stats.acc_std
+        )
+        sim.dt.fill_(self.dt)
+        self.sim = sim
+
+    def _loader(self, dataset, num_samples, shuffle: bool, noise: float) -> DataLoader:
+        if self.sim is None:
+            raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
+        collate = _Collate(self.sim, noise, self.resample, self.seed)
+        sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
+        return DataLoader(
+            dataset,
+            batch_size=self.batch_size,
+            sampler=sampler,
+            collate_fn=collate,
+            num_workers=self.num_workers,
+            persistent_workers=False,
+        )
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self.train_set, self.train_samples, True, self.noise_std)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self.val_set, self.val_samples, False, 0.0)

@@ -1,0 +1,134 @@
+"""Evaluation of rollouts: a perfect prediction scores zero, a perturbed one does not; the
+report's files; the paper's variant table and its Wilcoxon tests."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from scipy.stats import wilcoxon
+
+from granular_pyg.errors import InputError
+from granular_pyg.evaluation import evaluate_pair, variant_table, write_evaluation
+from granular_pyg.evaluation.report import EvaluatedRollout
+from granular_pyg.io import read_trajectory
+from granular_pyg.samples import sample_files
+
+
+def _as_rollout(truth, k: int = 1, history: int = 5, frames: int = 40):
+    """The ground truth itself, shaped like a rollout (every k-th frame, initial states first)."""
+    idx = np.arange(0, k * frames, k)
+    return dataclasses.replace(
+        truth,
+        positions=truth.positions[idx],
+        velocities=truth.velocities[idx],
+        times=truth.times[idx],
+        metadata={"initial_frames": history + 1, "time_step_multiple": k},
+    )
+
+
+@pytest.fixture(scope="module")
+def hopper():
+    return read_trajectory(sample_files("hopper", "test")[0])
+
+
+@pytest.fixture(scope="module")
+def drum():
+    return read_trajectory(sample_files("drum", "test")[0])
+
+
+def test_a_perfect_hopper_rollout_scores_zero(hopper):
+    ev = evaluate_pair(hopper, _as_rollout(hopper, k=2, frames=60))
+    s = ev.scalars
+    assert s["steps"] == 54
+    assert s["emd_final"] == pytest.approx(0, abs=1e-15)
+    assert all(v == pytest.approx(0, abs=1e-15) for v in ev.emd_steps.values())
+    assert sorted(ev.emd_steps) == [1, 2, 4, 8, 16, 32]
+    assert s["position_mse"] == 0 and s["mean_position_error"] == 0
+    assert s["mixing_entropy_error"] == 0 and s["flow_profile_error"] == 0
+    assert s["discharge_rate_truth"] > 0 and s["discharge_rate_rel_error"] == 0
+    assert s["leaked_particles"] == 0
+
+
+def test_a_shifted_rollout_is_penalised(hopper):
+    pred = _as_rollout(hopper, frames=40)
+    pred.positions = pred.positions.copy()
+    pred.positions[6:, :, 0] += 0.002  # 2 mm along x after the initial states
+    ev = evaluate_pair(hopper, pred)
+    assert ev.scalars["position_mse"] == pytest.approx(0.002**2 / 3, rel=1e-3)
+    assert ev.scalars["mean_position_error"] > 0.001
+    # W2^2 of a set and its 2 mm translate is (2 mm)^2
+    assert ev.emd_steps[1] == pytest.approx(0.002**2, rel=1e-3)
+
+
+def test_a_perfect_drum_rollout_has_no_angle_error(drum):
+    ev = evaluate_pair(drum, _as_rollout(drum, frames=200))
+    assert ev.observable[0] == "angle"
+    assert 20 < ev.scalars["angle_of_repose_truth_deg"] < 45
+    assert ev.scalars["angle_of_repose_error_deg"] == 0
+
+
+def test_evaluate_pair_rejects_a_foreign_prediction(hopper, drum):
+    with pytest.raises(InputError, match="particles against the truth"):
+        evaluate_pair(hopper, _as_rollout(drum))
+
+
+def test_the_evaluation_folder_holds_json_csv_figures_and_report(tmp_path, hopper):
+    ev = evaluate_pair(hopper, _as_rollout(hopper, frames=30))
+    rollouts = [EvaluatedRollout("test", "traj_0003.h5", "truth.h5", "pred.h5", ev)]
+    report = write_evaluation(tmp_path, rollouts, {"variant": "V3", "ckpt": "x.ckpt"})
+    text = report.read_text()
+    assert "| emd_mean |" in text and "figures/test_traj_0003.png" in text
+    summary = json.loads((tmp_path / "evaluation.json").read_text())
+    assert summary["variant"] == "V3" and summary["means"]["test"]["steps"] == 24
+    with (tmp_path / "emd_steps.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["step"]) for r in rows] == [1, 2, 4, 8, 16]
+    assert (tmp_path / "figures" / "test_traj_0003.png").read_bytes()[:4] == b"\x89PNG"
+    assert any((tmp_path / "tensorboard").glob("events.out.tfevents.*"))
+
+
+def _fake_run(folder, variant, values):
+    folder.mkdir(parents=True)
+    (folder / "evaluation.json").write_text(json.dumps({"variant": variant}))
+    with (folder / "emd_steps.csv").open("w") as fh:
+        fh.write("split,trajectory,step,emd\n")
+        for (split, traj, step), v in values.items():
+            fh.write(f"{split},{traj},{step},{v}\n")
+    return folder
+
+
+def test_variant_table_matches_scipy_on_paired_values(tmp_path):
+    rng = np.random.default_rng(0)
+    keys = [(s, f"t{i}", 2**j) for s in ("train", "test") for i in range(3) for j in range(5)]
+    v3 = {k: float(rng.uniform(1e-5, 1e-4)) for k in keys}
+    v1 = {k: v * float(rng.uniform(1.0, 3.0)) for k, v in v3.items()}  # V1 worse everywhere
+    runs = [
+        _fake_run(tmp_path / "a", "V3", v3),
+        _fake_run(tmp_path / "b", "V1", v1),
+        _fake_run(tmp_path / "c", "V1", v1),  # a second seed, identical: the mean is v1
+    ]
+    rows, markdown = variant_table(runs)
+    by = {r["variant"]: r for r in rows}
+    test_keys = [k for k in keys if k[0] == "test"]
+    a = np.array([v3[k] for k in sorted(test_keys)])
+    b = np.array([v1[k] for k in sorted(test_keys)])
+    assert by["V1"]["test_mu"] == pytest.approx(b.mean())
+    assert by["V1"]["test_sigma"] == pytest.approx(b.std())
+    assert by["V1"]["runs"] == 2 and by["V3"]["test_n"] == 15
+    expected = wilcoxon(a - b, alternative="less").pvalue
+    assert by["V1"]["test_p_ref_less"] == pytest.approx(expected)
+    assert by["V1"]["test_p_ref_less"] < 1e-3 < by["V1"]["test_p_row_less"]
+    assert np.isnan(by["V3"]["test_p_ref_less"])
+    assert "| V1 | 2 |" in markdown and "p (V3 < row)" in markdown
+
+
+def test_variant_table_needs_the_reference_and_real_folders(tmp_path):
+    run = _fake_run(tmp_path / "a", "V1", {("test", "t", 1): 1.0})
+    with pytest.raises(InputError, match="no run of variant 'V3'"):
+        variant_table([run])
+    with pytest.raises(InputError, match="not an evaluation folder"):
+        variant_table([tmp_path])

@@ -1,0 +1,198 @@
+"""Metrics: tiny exact cases and property tests against brute-force references."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import linear_sum_assignment
+
+from granular_pyg.errors import InputError
+from granular_pyg.metrics import (
+    discharge_rate,
+    dynamic_angle_of_repose,
+    emd,
+    emd_at_powers,
+    flow_profile,
+    leaked_mask,
+    leaked_particles,
+    mixing_classes,
+    mixing_entropy,
+    mixing_entropy_curve,
+    position_mse,
+)
+from granular_pyg.scenes import make_drum, make_hopper
+
+# --- EMD ------------------------------------------------------------------------------------
+
+
+def test_emd_of_a_set_with_itself_is_zero():
+    pts = np.random.default_rng(0).normal(size=(50, 3))
+    assert emd(pts, pts) == pytest.approx(0.0, abs=1e-15)
+    assert emd(pts, pts[::-1], squared=False) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_emd_of_a_shift_is_the_squared_shift():
+    pts = np.random.default_rng(1).normal(size=(30, 3))
+    shift = np.array([0.3, 0.0, 0.4])
+    assert emd(pts, pts + shift) == pytest.approx(0.25, rel=1e-9)  # |shift|^2
+    assert emd(pts, pts + shift, squared=False) == pytest.approx(0.5, rel=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(1, 9), seed=st.integers(0, 10**6))
+def test_emd_matches_brute_force_assignment(n, seed):
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    # Equal sizes and uniform weights: the optimal plan is a permutation.
+    for squared in (True, False):
+        cost = ((a[:, None] - b[None]) ** 2).sum(-1)
+        cost = cost if squared else np.sqrt(cost)
+        rows, cols = linear_sum_assignment(cost)
+        assert emd(a, b, squared=squared) == pytest.approx(cost[rows, cols].mean(), rel=1e-7)
+
+
+def test_emd_drops_particles_that_left_and_rejects_an_empty_set():
+    a = np.array([[0.0, 0, 0], [1.0, 0, 0], [np.nan, np.nan, np.nan]])
+    assert emd(a, a[:2]) == 0.0
+    with pytest.raises(InputError, match="empty"):
+        emd(a, np.full((2, 3), np.nan))
+
+
+def test_emd_at_powers_takes_frames_two_to_the_k_while_both_have_them():
+    truth = np.zeros((20, 4, 3))
+    pred = truth.copy()
+    pred[:, :, 0] = np.arange(20)[:, None]  # frame f shifted by f along x
+    out = emd_at_powers(truth, pred[:11])
+    assert list(out) == [1, 2, 4, 8]
+    assert out == {s: pytest.approx(float(s * s)) for s in (1, 2, 4, 8)}
+
+
+# --- position error -------------------------------------------------------------------------
+
+
+def test_position_mse_averages_over_particles_present_in_both():
+    truth = np.zeros((2, 3, 3))
+    pred = truth.copy()
+    pred[1, 0] = [3.0, 0.0, 0.0]  # squared error 9 over 3 coordinates
+    pred[1, 2] = np.nan
+    assert position_mse(truth, pred).tolist() == [0.0, pytest.approx(9.0 / 3 / 2)]
+
+
+# --- mixing entropy -------------------------------------------------------------------------
+
+
+def _grid(bins: int, per_cell: int) -> np.ndarray:
+    centres = (np.stack(np.meshgrid(*[np.arange(bins)] * 3, indexing="ij"), -1) + 0.5) / bins
+    return np.repeat(centres.reshape(-1, 3), per_cell, axis=0)
+
+
+def test_mixing_entropy_is_log2_for_a_perfectly_mixed_grid():
+    pos = _grid(9, 2)
+    classes = np.tile([1, -1], len(pos) // 2)
+    assert mixing_entropy(pos, classes) == pytest.approx(math.log(2), rel=1e-12)
+
+
+def test_mixing_entropy_is_zero_for_a_segregated_grid():
+    pos = _grid(9, 2)
+    classes = np.where(pos[:, 2] > 0.5, 1, -1)
+    assert mixing_entropy(pos, classes) == pytest.approx(0.0, abs=1e-15)
+
+
+def test_mixing_entropy_matches_the_formula_in_one_cell():
+    pos = np.zeros((4, 3))
+    classes = np.array([1, -1, -1, -1])
+    f = np.array([0.25, 0.75])
+    assert mixing_entropy(pos, classes, bins=1) == pytest.approx(-(f * np.log(f)).sum())
+
+
+def test_mixing_classes_split_at_the_median_of_frame_t0_and_the_curve_rises_when_mixed():
+    rng = np.random.default_rng(3)
+    start = rng.uniform(size=(200, 3))
+    positions = np.stack([start, start, rng.uniform(size=(200, 3))])
+    classes = mixing_classes(positions, frame=1, axis=2)
+    assert (classes == 1).sum() == 100 and (classes == -1).sum() == 100
+    curve = mixing_entropy_curve(positions, classes, bins=3)
+    assert curve[0] == curve[1] < 0.3 < curve[2]
+    with pytest.raises(InputError, match="frame"):
+        mixing_classes(positions, frame=5)
+
+
+# --- flow profile ---------------------------------------------------------------------------
+
+
+def test_flow_profile_averages_the_velocity_per_height_bin():
+    pos = np.array([[[0, 0, 0.1], [0, 0, 0.2], [0, 0, 0.9], [np.nan] * 3]])
+    vel = np.array([[[0, 0, -1.0], [0, 0, -3.0], [0, 0, 5.0], [0, 0, 7.0]]])
+    prof = flow_profile(pos, vel, z_bins=2, z_range=(0.0, 1.0))
+    assert prof.tolist() == [[-2.0, 5.0]]
+    empty = flow_profile(pos, vel, z_bins=4, z_range=(0.0, 1.0))
+    assert np.isnan(empty[0, 2])
+
+
+# --- hopper discharge -----------------------------------------------------------------------
+
+
+def test_discharge_rate_of_a_synthetic_steady_discharge():
+    # 100 particles of 2 g leave one by one every 10 ms: 0.2 kg/s.
+    n, dt = 100, 0.01
+    times = np.arange(0, 1.2, 0.001)
+    leave = 0.1 + dt * np.arange(n)
+    z = np.where(times[:, None] < leave[None], 0.05, np.nan)
+    positions = np.zeros((len(times), n, 3))
+    positions[..., 2] = z
+    rate, (t0, t1) = discharge_rate(times, positions, outlet_z=0.0, mass=np.full(n, 0.002))
+    assert rate == pytest.approx(0.2, rel=0.02)
+    assert 0.1 < t0 < t1 < 1.1
+    with pytest.raises(InputError, match="too little discharge"):
+        discharge_rate(times, np.full_like(positions, 0.05), outlet_z=0.0, mass=np.ones(n))
+
+
+# --- drum angle of repose -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("angle", [15.0, 30.0, 40.0])
+def test_angle_of_repose_of_a_synthetic_tilted_bed(angle):
+    # A bed inside a circle of radius 0.05 (x-z plane) below a plane tilted by `angle`.
+    rng = np.random.default_rng(int(angle))
+    pts = rng.uniform(-0.05, 0.05, size=(60000, 3))
+    pts[:, 1] *= 0.2
+    slope = math.tan(math.radians(angle))
+    bed = (np.hypot(pts[:, 0], pts[:, 2]) < 0.05) & (pts[:, 2] < slope * pts[:, 0])
+    got = dynamic_angle_of_repose(pts[bed], axis=1)
+    assert abs(got - angle) < 0.5
+
+
+# --- leakage --------------------------------------------------------------------------------
+
+
+def test_leakage_counts_particles_through_the_drum_wall():
+    scene = make_drum(num_particles=100)
+    r = scene.params["drum_radius"]
+    pos = np.zeros((3, 4, 3))
+    pos[1, 1] = [r + 0.001, 0, 0]  # 1 mm outside the shell in frame 1
+    pos[2, 2] = [0, scene.params["length"], 0]  # beyond an end cap
+    pos[:, 3] = np.nan  # never present
+    times = np.arange(3) * scene.frame_dt
+    assert leaked_mask(pos, scene, times).sum() == 2
+    assert leaked_particles(pos, scene, times) == 2
+    # Counted only when wholly through the wall: radius 2 mm > 1 mm overshoot.
+    assert leaked_particles(pos, scene, times, radii=np.full(4, 0.002)) == 1
+
+
+def test_leakage_in_the_hopper_respects_the_lid_and_the_v():
+    scene = make_hopper(num_particles=100)
+    p = scene.params
+    t_open = p["t_open"]
+    times = np.array([0.0, t_open + 0.01])
+    pos = np.zeros((2, 3, 3))
+    pos[:, 0] = [0.0, 0.0, -0.01]  # below the outlet: leaked before t_open, falling after
+    z = 0.02
+    half = p["opening"] / 2 + z / math.tan(math.radians(p["alpha_deg"]))
+    pos[:, 1] = [half + 0.003, 0.0, z]  # outside the inclined wall
+    pos[:, 2] = [0.0, 0.0, z]  # inside
+    mask = leaked_mask(pos, scene, times)
+    assert mask.tolist() == [[True, True, False], [False, True, False]]
