@@ -2,11 +2,8 @@
 
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from granular_pyg.evaluation.pair import PairEvaluation
 
@@ -29,11 +26,12 @@ def comparison_figure(ev: PairEvaluation, title: str = ""):
         title: figure title.
 
     Returns:
-        A matplotlib Figure (the caller saves or logs it).
+        A matplotlib ``Figure`` (no pyplot state: the caller saves, logs or displays it).
     """
     s = ev.series
     t = s["times"]
-    fig, axes = plt.subplots(2, 3, figsize=(13, 7))
+    fig = Figure(figsize=(13, 7))
+    axes = fig.subplots(2, 3)
     ax = axes[0, 0]
     for i, (name, colour) in enumerate(zip(AXES, COLOURS, strict=True)):
         ax.plot(t, s["mean_pos_truth"][:, i], color=colour, label=name, **TRUTH)

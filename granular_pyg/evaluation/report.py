@@ -109,10 +109,6 @@ def write_evaluation(out_dir: str | Path, rollouts: list[EvaluatedRollout], info
         figures[(r.split, r.name)] = path
         if writer is not None:
             writer.add_figure(f"evaluation/{r.split}/{r.name}", fig, global_step=i)
-        else:
-            import matplotlib.pyplot as plt
-
-            plt.close(fig)
     if writer is not None:
         for split, values in means.items():
             for name, value in values.items():

@@ -3,11 +3,8 @@
 from __future__ import annotations
 
 import lightning as L
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from granular_pyg.inference import matching_frames, rollout_trajectory
 from granular_pyg.metrics import emd
@@ -17,7 +14,8 @@ __all__ = ["RolloutValidation", "rollout_figure"]
 
 def rollout_figure(truth: np.ndarray, pred: np.ndarray, title: str):
     """x-z scatter of ground truth (filled) against prediction (open) for one frame."""
-    fig, ax = plt.subplots(figsize=(4.5, 4.5))
+    fig = Figure(figsize=(4.5, 4.5))
+    ax = fig.subplots()
     ax.scatter(truth[:, 0], truth[:, 2], s=4, c="tab:blue", label="LIGGGHTS")
     ax.scatter(
         pred[:, 0],
