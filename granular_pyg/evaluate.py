@@ -8,7 +8,6 @@ reads to build the paper's variant table.
 from __future__ import annotations
 
 import dataclasses
-import sys
 from pathlib import Path
 
 import hydra
@@ -42,7 +41,7 @@ def evaluate(cfg: DictConfig) -> Path:
         files = load_split(root, sample, split)[: cfg.max_trajectories]
         for file in files:
             truth = read_trajectory(file)
-            pred = rollout_trajectory(sim, truth, cfg.steps, progress=cfg.progress)
+            pred = rollout_trajectory(sim, truth, cfg.steps, progress=cfg.progress, skin=cfg.skin)
             pred_file = out / "rollouts" / f"{split}_{file.stem}.h5"
             pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(file)}
             write_trajectory(pred, pred_file)
@@ -66,7 +65,7 @@ def evaluate(cfg: DictConfig) -> Path:
         "seed": config.get("seed"),
         "processor": config["model"].get("processor", {}).get("layer"),
         "data": {"root": root, "sample": sample},
-        "command": "python -m granular_pyg.evaluate " + " ".join(sys.argv[1:]),
+        "command": _command(cfg),
     }
     report = write_evaluation(out, rollouts, info)
     for split, values in _split_means(rollouts).items():
@@ -74,6 +73,15 @@ def evaluate(cfg: DictConfig) -> Path:
         print(f"{split}: {shown}")
     print(f"report: {report}")
     return report
+
+
+def _command(cfg: DictConfig) -> str:
+    """The command line that reproduces this evaluation (also when called from Python)."""
+    parts = [f"ckpt={cfg.ckpt}", f"splits=[{','.join(cfg.splits)}]"]
+    for key in ("root", "sample", "max_trajectories", "steps", "skin"):
+        if cfg[key] is not None:
+            parts.append(f"{key}={cfg[key]}")
+    return "python -m granular_pyg.evaluate " + " ".join(parts)
 
 
 def _at_rollout_frames(truth: Trajectory, pred: Trajectory) -> Trajectory:

@@ -41,7 +41,13 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     source = Path(cfg.trajectory) if cfg.trajectory else default_trajectory(config)
     truth = read_trajectory(source)
     pred = rollout_trajectory(
-        sim, truth, cfg.steps, cfg.start_frame, progress=cfg.progress, dtype=DTYPES[cfg.dtype]
+        sim,
+        truth,
+        cfg.steps,
+        cfg.start_frame,
+        progress=cfg.progress,
+        dtype=DTYPES[cfg.dtype],
+        skin=cfg.skin,
     )
     pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
     out = Path(cfg.out)

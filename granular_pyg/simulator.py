@@ -34,7 +34,7 @@ from torch_geometric.data import Batch, Data
 from granular_pyg.errors import InputError, check_tensor
 from granular_pyg.nn import EncodeProcessDecode, Processor
 from granular_pyg.scenes import WallSet
-from granular_pyg.transforms import AddWallNodes, RadiusGraph
+from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 
 __all__ = ["LearnedSimulator"]
 
@@ -137,7 +137,14 @@ class LearnedSimulator(nn.Module):
 
     # -- graph and features -----------------------------------------------------------------
 
-    def build_graph(self, pos_seq: torch.Tensor, walls: WallSet, time: float) -> Data:
+    def build_graph(
+        self,
+        pos_seq: torch.Tensor,
+        walls: WallSet,
+        time: float,
+        neighbours: NeighbourList | None = None,
+        ids: torch.Tensor | None = None,
+    ) -> Data:
         """The input graph for one state.
 
         Args:
@@ -145,6 +152,9 @@ class LearnedSimulator(nn.Module):
                 steps (m, world frame), oldest first; float32 or float64.
             walls: the scene's walls.
             time: recorded time (s) of the last position (sets wall poses).
+            neighbours: a :class:`NeighbourList` to reuse over a rollout (same edges as a
+                fresh radius graph); None: a fresh radius graph.
+            ids: ``[N]`` increasing ids of the present particles, for ``neighbours``.
 
         Returns:
             A Data with ``x [N + W, 3H + 8]``, ``edge_index [2, E]``, ``edge_attr [E, 4]``,
@@ -152,7 +162,11 @@ class LearnedSimulator(nn.Module):
         """
         check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS))
         data = Data(pos=pos_seq[:, -1], walls=walls, time=float(time))
-        data = self.wall_nodes(self.radius_graph(data))
+        if neighbours is None:
+            data = self.radius_graph(data)
+        else:
+            data.edge_index = neighbours(data.pos, ids)
+        data = self.wall_nodes(data)
         return self._features(data, pos_seq)
 
     def _features(self, data: Data, pos_seq: torch.Tensor) -> Data:
@@ -184,10 +198,15 @@ class LearnedSimulator(nn.Module):
         return out[~graph.is_wall]
 
     def predict_acceleration(
-        self, pos_seq: torch.Tensor, walls: WallSet, time: float
+        self,
+        pos_seq: torch.Tensor,
+        walls: WallSet,
+        time: float,
+        neighbours: NeighbourList | None = None,
+        ids: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Physical acceleration ``[N, 3]`` (m/s^2, float32) of the present particles."""
-        normalised = self(self.build_graph(pos_seq, walls, time))
+        normalised = self(self.build_graph(pos_seq, walls, time, neighbours, ids))
         return normalised * self.acc_std + self.acc_mean
 
     @torch.no_grad()
@@ -197,6 +216,7 @@ class LearnedSimulator(nn.Module):
         walls: WallSet,
         time: float,
         outflow_z: float | None = None,
+        neighbours: NeighbourList | None = None,
     ) -> torch.Tensor:
         """Advance one learned step (``dt``).
 
@@ -208,6 +228,7 @@ class LearnedSimulator(nn.Module):
             walls: the scene's walls.
             time: recorded time (s) of the last position.
             outflow_z: the scene's outflow height (m), or None.
+            neighbours: a :class:`NeighbourList` kept over the steps of a rollout, or None.
 
         Returns:
             ``[N, 3]`` next positions in the dtype of ``pos_seq``.
@@ -218,7 +239,8 @@ class LearnedSimulator(nn.Module):
         if not bool(present.any()):
             return out
         seq = pos_seq[present]
-        acc = self.predict_acceleration(seq, walls, time).double()
+        ids = present.nonzero().squeeze(1) if neighbours is not None else None
+        acc = self.predict_acceleration(seq, walls, time, neighbours, ids).double()
         last_vel = self.velocities(seq[:, -2:])[:, 0]
         next_vel = last_vel + self.dt * acc
         out[present] = (seq[:, -1].double() + self.dt * next_vel).to(pos_seq.dtype)
@@ -235,6 +257,7 @@ class LearnedSimulator(nn.Module):
         steps: int,
         outflow_z: float | None = None,
         progress: bool = False,
+        skin: float | None = None,
     ) -> torch.Tensor:
         """Autoregressive rollout of ``steps`` learned steps from ``pos_seq``.
 
@@ -245,6 +268,8 @@ class LearnedSimulator(nn.Module):
             steps: learned steps to take.
             outflow_z: the scene's outflow height (m), or None.
             progress: show a progress bar.
+            skin: reuse the radius graph between steps with this Verlet skin (m); the same
+                edges as fresh graphs, fewer tree searches. None: a fresh graph every step.
 
         Returns:
             ``[steps, N, 3]`` predicted positions, NaN for particles that have left.
@@ -253,8 +278,10 @@ class LearnedSimulator(nn.Module):
 
         seq, out = pos_seq, []
         dt = float(self.dt)
+        rg = self.radius_graph
+        neighbours = None if skin is None else NeighbourList(rg.radius, skin, rg.backend)
         for s in tqdm(range(steps), desc="rollout", unit="step", disable=not progress):
-            nxt = self.step(seq, walls, time + s * dt, outflow_z)
+            nxt = self.step(seq, walls, time + s * dt, outflow_z, neighbours)
             out.append(nxt)
             seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
         return torch.stack(out) if out else pos_seq.new_zeros((0, *pos_seq.shape[::2]))

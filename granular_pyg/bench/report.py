@@ -102,10 +102,15 @@ def git_commit() -> str:
     return sha + ("-dirty" if dirty else "")
 
 
+def _columns(rows: list[dict]) -> list[str]:
+    """Every key of ``rows`` in first-seen order (suites mix row kinds)."""
+    return list(dict.fromkeys(k for row in rows for k in row))
+
+
 def _markdown_table(rows: list[dict]) -> str:
     if not rows:
         return ""
-    keys = list(rows[0])
+    keys = _columns(rows)
     fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
     lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
     lines += ["| " + " | ".join(fmt(row.get(k, "")) for k in keys) + " |" for row in rows]
@@ -132,7 +137,7 @@ def write_report(out_dir: Path, suite: str, result: SuiteResult, command: str) -
 
     buf = io.StringIO()
     if result.rows:
-        writer = csv.DictWriter(buf, fieldnames=list(result.rows[0]))
+        writer = csv.DictWriter(buf, fieldnames=_columns(result.rows))
         writer.writeheader()
         writer.writerows(result.rows)
     with atomic_write(out_dir / "results.csv") as fh:

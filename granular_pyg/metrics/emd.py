@@ -49,6 +49,8 @@ def emd_at_powers(
     """EMD at frames ``2^0, 2^1, ..., 2^k`` while both trajectories have them (the paper's table).
 
     Frame 0 is the last shared initial state, so frame ``2^j`` is the ``2^j``-th predicted step.
+    A frame where either set is empty (a hopper that has drained in one but not the other) has
+    no EMD and is left out.
 
     Args:
         truth: ``[T, N, 3]`` positions (m), NaN once a particle has left.
@@ -69,5 +71,7 @@ def emd_at_powers(
         step = 2**j
         if step >= frames:
             break
-        out[step] = emd(truth[step], pred[step], squared=squared)
+        a, b = truth[step], pred[step]
+        if np.isfinite(a).all(1).any() and np.isfinite(b).all(1).any():
+            out[step] = emd(a, b, squared=squared)
     return out

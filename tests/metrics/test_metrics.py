@@ -69,6 +69,9 @@ def test_emd_at_powers_takes_frames_two_to_the_k_while_both_have_them():
     out = emd_at_powers(truth, pred[:11])
     assert list(out) == [1, 2, 4, 8]
     assert out == {s: pytest.approx(float(s * s)) for s in (1, 2, 4, 8)}
+    drained = truth.copy()
+    drained[4:] = np.nan  # every particle has left the truth from frame 4 on
+    assert list(emd_at_powers(drained, pred)) == [1, 2]
 
 
 # --- position error -------------------------------------------------------------------------

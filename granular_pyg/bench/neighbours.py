@@ -1,0 +1,219 @@
+"""Suite ``neighbours``: the radius graph against bare ``cKDTree.query_pairs``, and the
+Verlet-style neighbour reuse over real LIGGGHTS motion.
+
+1. ``radius_graph`` (scipy backend, the exact test and both directions; unsorted and sorted)
+   against ``cKDTree(pos).query_pairs(r)`` on the same jittered-lattice points, timed side by
+   side (medians after a warm-up).
+2. BGNN's dense ``N x N`` particle graph against ours at its hopper scale (20,000 points),
+   checked identical.
+3. The graph of every step of a bundled trajectory (the ground-truth positions, so both paths
+   see the same motion), built fresh each step or with a :class:`NeighbourList` of skin ``s``:
+   time of the particle graph alone and of the whole ``build_graph`` (particle graph + wall
+   nodes + features), and the number of tree searches. The edges are checked equal every step.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import torch
+from hydra.utils import instantiate
+
+from granular_pyg.bench.radius_graph import jittered_lattice
+from granular_pyg.bench.report import SuiteResult, Target, time_call
+from granular_pyg.config import compose
+from granular_pyg.io import read_trajectory
+from granular_pyg.samples import sample_files
+from granular_pyg.scenes import WallSet
+from granular_pyg.transforms import NeighbourList, radius_graph
+
+
+def _interleaved(fns: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
+    """Median seconds of each ``fn``, timed in turn within each round (after a warm-up round),
+    so that drift of the machine hits every candidate alike."""
+    times: dict[str, list[float]] = {name: [] for name in fns}
+    for round_ in range(repeats + 1):
+        for name, fn in fns.items():
+            start = time.perf_counter()
+            fn()
+            if round_:
+                times[name].append(time.perf_counter() - start)
+    return {name: statistics.median(ts) for name, ts in times.items()}
+
+
+def _query_pairs_rows(num_points, radius_in_spacings: float, repeats: int) -> list[dict]:
+    from scipy.spatial import cKDTree
+
+    rows = []
+    r = radius_in_spacings * 0.003
+    for n in num_points:
+        pos = jittered_lattice(n)
+        p64 = pos.double().numpy()
+        t = _interleaved(
+            {
+                "bare": lambda p=p64: cKDTree(p).query_pairs(r, output_type="ndarray"),
+                "unsorted": lambda p=pos: radius_graph(p, r, "scipy", sort=False),
+                "sorted": lambda p=pos: radius_graph(p, r, "scipy"),
+            },
+            max(repeats, 11),
+        )
+        rows.append(
+            {
+                "part": "radius graph",
+                "case": f"{n} points",
+                "query_pairs_s": t["bare"],
+                "unsorted_s": t["unsorted"],
+                "sorted_s": t["sorted"],
+                "unsorted_over_query_pairs": t["unsorted"] / t["bare"],
+                "sorted_over_query_pairs": t["sorted"] / t["bare"],
+            }
+        )
+    return rows
+
+
+def dense_radius_graph(pos: torch.Tensor, radius: float, chunk: int = 2048) -> torch.Tensor:
+    """BGNN's approach: the full ``N x N`` distance matrix (in row chunks to bound memory),
+    thresholded; ``[2, E]`` sorted by (target, source) like ``radius_graph``."""
+    r2 = torch.tensor(radius * radius, dtype=pos.dtype)
+    parts = []
+    for start in range(0, pos.shape[0], chunk):
+        d = pos[start : start + chunk, None, :] - pos[None, :, :]
+        d = d * d
+        sq = (d[..., 0] + d[..., 1]) + d[..., 2]
+        target, source = (sq < r2).nonzero(as_tuple=True)
+        target = target + start
+        keep = target != source
+        parts.append(torch.stack([source[keep], target[keep]]))
+    return torch.cat(parts, dim=1)
+
+
+def _dense_rows(num_points: int, radius_in_spacings: float, repeats: int) -> list[dict]:
+    pos = jittered_lattice(num_points)
+    r = radius_in_spacings * 0.003
+    dense = dense_radius_graph(pos, r)
+    ours = radius_graph(pos, r)
+    if not torch.equal(dense, ours):
+        raise AssertionError("dense and radius_graph disagree")
+    dense_s = time_call(lambda: dense_radius_graph(pos, r), max(1, repeats // 2))
+    ours_s = time_call(lambda: radius_graph(pos, r), repeats)
+    return [
+        {
+            "part": "dense N x N (BGNN)",
+            "case": f"{num_points} points",
+            "dense_s": dense_s,
+            "radius_graph_s": ours_s,
+            "speedup": dense_s / ours_s,
+        }
+    ]
+
+
+def _replay(sim, traj, skin: float | None, frames: range) -> dict:
+    """Build the graph of each frame of ``traj``; return times (s) and the edges per frame."""
+    walls = WallSet(traj.scene)
+    rg = sim.radius_graph
+    nl = None if skin is None else NeighbourList(rg.radius, skin, rg.backend)
+    h = sim.history
+    graph_s = build_s = 0.0
+    edges = []
+    for f in frames:
+        seq = torch.from_numpy(traj.positions[f - h : f + 1]).permute(1, 0, 2)
+        present = torch.isfinite(seq).all(2).all(1)
+        seq = seq[present].contiguous()
+        ids = present.nonzero().squeeze(1)
+        start = time.perf_counter()
+        last = seq[:, -1]
+        e = radius_graph(last, rg.radius, rg.backend) if nl is None else nl(last, ids)
+        graph_s += time.perf_counter() - start
+        start = time.perf_counter()
+        sim.build_graph(seq, walls, float(traj.times[f]), nl, ids)
+        build_s += time.perf_counter() - start
+        edges.append(e)
+    return {
+        "graph_s": graph_s,
+        "build_s": build_s,
+        "edges": edges,
+        "builds": nl.builds if nl else len(frames),
+    }
+
+
+def run(
+    num_points: tuple[int, ...] = (2000, 10000, 50000),
+    radius_in_spacings: float = 2.5,
+    scenes: tuple[str, ...] = ("hopper", "drum"),
+    skins: tuple[float, ...] = (0.0005, 0.001, 0.002),
+    frames: int = 100,
+    dense_points: int = 20000,
+    repeats: int = 5,
+) -> SuiteResult:
+    """Run the suite; see the module docstring. ``skins`` in m, ``frames`` per replay;
+    ``dense_points``: size of the dense ``N x N`` comparison (BGNN's hopper: 20,000)."""
+    rows = _query_pairs_rows(num_points, radius_in_spacings, repeats)
+    rows += _dense_rows(dense_points, radius_in_spacings, repeats)
+    results = {"dense/speedup": rows[-1]["speedup"]}
+    for row in rows[:-1]:
+        results[f"radius_graph/{row['case']}/unsorted_over_query_pairs"] = row[
+            "unsorted_over_query_pairs"
+        ]
+    best_reuse = 0.0
+    for scene in scenes:
+        traj = read_trajectory(sample_files(scene, "test")[0])
+        radius = 0.0075 if scene == "hopper" else 0.01
+        sim = instantiate(compose("train", [f"model.radius={radius}"]).model).eval()
+        span = range(sim.history + 20, min(traj.num_frames, sim.history + 20 + frames))
+        with torch.inference_mode():
+            fresh = _replay(sim, traj, None, span)
+            for skin in skins:
+                reuse = _replay(sim, traj, skin, span)
+                pairs = zip(fresh["edges"], reuse["edges"], strict=True)
+                if not all(torch.equal(a, b) for a, b in pairs):
+                    raise AssertionError(f"{scene}, skin {skin}: reused edges differ")
+                speedup = fresh["graph_s"] / reuse["graph_s"]
+                best_reuse = max(best_reuse, speedup)
+                rows.append(
+                    {
+                        "part": "neighbour reuse",
+                        "case": f"{scene}, skin {skin * 1e3:g} mm, {len(span)} frames",
+                        "fresh_graph_s": fresh["graph_s"],
+                        "reuse_graph_s": reuse["graph_s"],
+                        "graph_speedup": speedup,
+                        "fresh_build_s": fresh["build_s"],
+                        "reuse_build_s": reuse["build_s"],
+                        "build_speedup": fresh["build_s"] / reuse["build_s"],
+                        "searches": reuse["builds"],
+                    }
+                )
+                results[f"reuse/{scene}/skin_{skin * 1e3:g}mm/graph_speedup"] = speedup
+    worst = max(r["unsorted_over_query_pairs"] for r in rows if r["part"] == "radius graph")
+    targets = [
+        Target("radius graph (unsorted) / query_pairs, worst size", worst, "<=", 1.2),
+        Target("neighbour reuse speed-up of the particle graph, best skin", best_reuse, ">=", 2.0),
+    ]
+    notes = (
+        "Radius graph: jittered 3 mm lattice, float32, cut-off 2.5 spacings, scipy backend. "
+        "Reuse: ground-truth frames of the first bundled test trajectory of each scene, graph "
+        "radius 7.5 mm (hopper) / 10 mm (drum); edges checked identical to fresh every frame."
+    )
+    return SuiteResult(rows, results, targets, _figure(rows), notes)
+
+
+def _figure(rows: list[dict]):
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.5))
+    graph = [r for r in rows if r["part"] == "radius graph"]
+    names = [r["case"] for r in graph]
+    a.bar(names, [r["unsorted_over_query_pairs"] for r in graph], label="unsorted")
+    a.plot(names, [r["sorted_over_query_pairs"] for r in graph], "ko", label="sorted")
+    a.axhline(1.2, color="r", lw=0.8)
+    a.set_ylabel("time / query_pairs")
+    a.legend()
+    reuse = [r for r in rows if r["part"] == "neighbour reuse"]
+    b.barh([r["case"] for r in reuse], [r["graph_speedup"] for r in reuse])
+    b.axvline(2.0, color="r", lw=0.8)
+    b.set_xlabel("particle-graph speed-up with reuse")
+    fig.tight_layout()
+    return fig

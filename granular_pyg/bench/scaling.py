@@ -1,0 +1,139 @@
+"""Suite ``scaling``: graph + wall-node construction and one model step against the particle
+count and the triangle count, with fitted exponents and peak memory.
+
+Particles are packed into the bench hopper funnel (``bench.meshes``); each measurement runs in
+a fresh process so that its peak resident memory (``ru_maxrss``) is its own. Times are medians
+of ``repeats`` runs after a warm-up. The exponent ``b`` of ``time ~ a n^b`` is a least-squares
+fit in log-log space over the sizes measured.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import resource
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+
+from granular_pyg.bench.report import SuiteResult
+
+
+def _measure(kind: str, particles: int, triangles: int, radius: float, repeats: int) -> dict:
+    """One measurement, run in a child process; returns seconds and peak RSS (MiB)."""
+    from hydra.utils import instantiate
+
+    from granular_pyg.bench.meshes import funnel_mesh, packed_particles
+    from granular_pyg.bench.report import time_call
+    from granular_pyg.config import compose
+    from granular_pyg.geometry import WallIndex
+    from granular_pyg.transforms import radius_graph
+
+    torch.set_num_threads(2)
+    vertices, faces = funnel_mesh(triangles)
+    pos = packed_particles(particles, radius=radius).float()
+    cutoff = 3.75 * radius  # the model's R = 7.5 mm for 2 mm particles
+    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    out = {"particles": int(pos.shape[0]), "triangles": int(faces.shape[0])}
+    with torch.inference_mode():
+        if kind == "graph":
+            index = WallIndex(vertices.float(), faces)
+
+            def build():
+                edges = radius_graph(pos, cutoff)
+                pairs = index.pairs(pos, cutoff)
+                return edges, pairs
+
+            edges, pairs = build()
+            out["seconds"] = time_call(build, repeats)
+            out["edges"] = int(edges.shape[1])
+            out["wall_nodes"] = int(pairs.tri_idx.numel())
+        else:
+            from granular_pyg.scenes import Wall, WallSet
+            from granular_pyg.scenes.scene import ParticleSpec, Scene
+
+            scene = Scene(
+                "bench",
+                [Wall("funnel", vertices.numpy(), faces.numpy())],
+                ParticleSpec(count=particles, radius=radius, fill_lo=(0, 0, 0), fill_hi=(1, 1, 1)),
+            )
+            walls = WallSet(scene)
+            sim = instantiate(compose("train", [f"model.radius={cutoff}"]).model).eval()
+            seq = pos[:, None].repeat(1, sim.history + 1, 1)
+            graph = sim.build_graph(seq, walls, 0.0)
+            out["seconds"] = time_call(lambda: sim(sim.build_graph(seq, walls, 0.0)), repeats)
+            out["edges"] = int(graph.edge_index.shape[1])
+            out["wall_nodes"] = int(graph.is_wall.sum())
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    out["peak_rss_mib"] = peak / 1024.0
+    out["extra_rss_mib"] = (peak - base) / 1024.0
+    return out
+
+
+def _in_child(*args) -> dict:
+    with mp.get_context("spawn").Pool(1) as pool:
+        return pool.apply(_measure, args)
+
+
+def _exponent(sizes: list[int], seconds: list[float]) -> float:
+    return float(np.polyfit(np.log(sizes), np.log(seconds), 1)[0])
+
+
+def run(
+    particle_counts: tuple[int, ...] = (1000, 3000, 10000, 30000, 100000),
+    model_particle_counts: tuple[int, ...] = (1000, 3000, 10000, 30000),
+    triangle_counts: tuple[int, ...] = (100, 1000, 10000, 100000),
+    fixed_triangles: int = 424,
+    fixed_particles: int = 20000,
+    particle_radius: float = 0.0006,
+    repeats: int = 3,
+) -> SuiteResult:
+    """Run the suite; see the module docstring. ``particle_radius`` (m) sets the packing and
+    the cut-off (3.75 radii, the model's 7.5 mm for 2 mm particles)."""
+    rows = []
+    sweeps = (
+        ("graph", "particles", [(n, fixed_triangles) for n in particle_counts]),
+        ("model step", "particles", [(n, fixed_triangles) for n in model_particle_counts]),
+        ("graph", "triangles", [(fixed_particles, t) for t in triangle_counts]),
+    )
+    results = {}
+    for kind, axis, sizes in sweeps:
+        measured = []
+        for n, t in sizes:
+            row = _in_child("graph" if kind == "graph" else "model", n, t, particle_radius, repeats)
+            measured.append(row | {"what": kind, "against": axis})
+        xs = [r[axis] for r in measured]
+        b = _exponent(xs, [r["seconds"] for r in measured])
+        for r in measured:
+            r["fitted_exponent"] = b
+        rows += measured
+        results[f"scaling/{kind}/{axis}/exponent"] = b
+        results[f"scaling/{kind}/{axis}/peak_rss_mib_max"] = max(
+            r["peak_rss_mib"] for r in measured
+        )
+    notes = (
+        f"Bench funnel (`bench.meshes`), particles of radius {particle_radius * 1e3:g} mm packed "
+        f"on a jittered lattice, cut-off {3.75 * particle_radius * 1e3:g} mm; graph = radius "
+        "graph + wall pairs (WallIndex); model step = build_graph + forward of the default v3 "
+        "model (bgnn, latent 128). Each size in a fresh process (peak RSS its own)."
+    )
+    return SuiteResult(rows, results, [], _figure(rows), notes)
+
+
+def _figure(rows: list[dict]):
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for kind in ("graph", "model step"):
+        part = [r for r in rows if r["what"] == kind and r["against"] == "particles"]
+        a.loglog([r["particles"] for r in part], [r["seconds"] for r in part], "o-", label=kind)
+    a.set_xlabel("particles")
+    a.set_ylabel("s per call")
+    a.legend()
+    part = [r for r in rows if r["against"] == "triangles"]
+    b.loglog([r["triangles"] for r in part], [r["seconds"] for r in part], "o-")
+    b.set_xlabel("triangles")
+    b.set_ylabel("graph s per call")
+    fig.tight_layout()
+    return fig
