@@ -24,6 +24,22 @@ def test_every_step_equals_a_fresh_radius_graph(seed, dtype):
     assert nl.calls == 30 and 1 <= nl.builds < 30
 
 
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10**6))
+def test_only_the_fast_particles_are_searched_again(seed):
+    """A bed that barely moves with a few particles falling fast through it (a discharging
+    hopper): partial searches, and still the fresh graph at every step."""
+    gen = torch.Generator().manual_seed(seed)
+    pos = torch.rand(400, 3, generator=gen) * 0.05
+    fast = torch.randperm(400, generator=gen)[:12]
+    nl = NeighbourList(0.008, skin=0.002)
+    for _ in range(25):
+        pos = pos + (torch.rand(pos.shape, generator=gen) - 0.5) * 2e-4
+        pos[fast, 2] -= 0.003  # 3 mm per step, beyond the skin
+        assert torch.equal(nl(pos), radius_graph(pos, 0.008))
+    assert nl.builds == 1 and nl.refreshes >= 20
+
+
 def test_a_move_beyond_half_the_skin_triggers_a_search():
     pos = torch.tensor([[0.0, 0, 0], [0.009, 0, 0]])
     nl = NeighbourList(0.008, skin=0.002)

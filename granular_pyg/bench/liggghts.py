@@ -1,0 +1,117 @@
+"""Suite ``liggghts``: LIGGGHTS against the learned rollout on the same Scene, side by side.
+
+The Scene of a ground-truth trajectory (default: the first bundled hopper test trajectory) is
+run again by LIGGGHTS, serial and with MPI, and rolled out by a trained model from the same
+initial states, on the same machine. Compared per simulated second of the recorded phase:
+LIGGGHTS's own ``Loop time`` of the recorded runs (the fill-and-settle run before recording is
+left out; writing the dump is in, as in any real run) against the wall time of the learned
+rollout (graphs, forward passes, integration, outflow). The rollout's accuracy against the
+ground truth is reported with it: discharge-rate error, EMD, leaked particles.
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import torch
+
+from granular_pyg.bench.report import SuiteResult, Target
+from granular_pyg.dem.simulate import simulate
+from granular_pyg.errors import InputError
+from granular_pyg.evaluation import evaluate_pair
+from granular_pyg.inference import load_simulator, rollout_trajectory
+from granular_pyg.io import read_trajectory
+from granular_pyg.samples import sample_files
+
+LOOP_TIME = re.compile(r"^Loop time of ([0-9.eE+-]+) on (\d+) procs for (\d+) steps", re.M)
+
+
+def recorded_loop_time(log: Path) -> float:
+    """Seconds LIGGGHTS spent in the runs after the first (the fill-and-settle run)."""
+    loops = [float(m.group(1)) for m in LOOP_TIME.finditer(log.read_text())]
+    if len(loops) < 2:
+        raise InputError(f"{log}: expected a settle run and recorded runs, found {len(loops)}")
+    return sum(loops[1:])
+
+
+def run(
+    ckpt: str,
+    trajectory: str | None = None,
+    mpi_procs: tuple[int, ...] = (1, 2),
+    threads: int = 2,
+    skin: float | None = None,
+    repeats: int = 1,
+) -> SuiteResult:
+    """Run the suite; see the module docstring. ``repeats`` is unused (one run each)."""
+    truth = read_trajectory(trajectory or sample_files("hopper", "test")[0])
+    scene = truth.scene
+    seed = int(truth.metadata.get("seed", 0))
+    simulated = float(truth.times[-1] - truth.times[0])
+    rows, results = [], {}
+    for procs in mpi_procs:
+        with tempfile.TemporaryDirectory(prefix="bench_liggghts_") as tmp:
+            _, dem = simulate(scene, seed, tmp, keep_workdir=True, mpi_procs=procs, progress=False)
+            loop = recorded_loop_time(Path(tmp) / "log.liggghts")
+        rows.append(
+            {
+                "simulator": f"LIGGGHTS, {procs} MPI process{'es' if procs > 1 else ''}",
+                "simulated_s": simulated,
+                "wall_s": loop,
+                "wall_s_per_simulated_s": loop / simulated,
+                "whole_run_s": dem.wall_time_s,
+            }
+        )
+    torch.set_num_threads(threads)
+    sim, config = load_simulator(ckpt)
+    with torch.inference_mode():
+        start = time.perf_counter()
+        pred = rollout_trajectory(sim, truth, progress=False, skin=skin)
+        wall = time.perf_counter() - start
+    scalars = evaluate_pair(truth, pred).scalars
+    learned_sim = float(pred.times[-1] - pred.times[pred.metadata["initial_frames"] - 1])
+    model = config["model"]
+    rows.append(
+        {
+            "simulator": f"learned ({model.get('normals')}, {model['processor']['layer']}, "
+            f"latent {model['latent']}, k = {pred.metadata['time_step_multiple']})",
+            "simulated_s": learned_sim,
+            "wall_s": wall,
+            "wall_s_per_simulated_s": wall / learned_sim,
+            "parameters": sum(p.numel() for p in sim.parameters()),
+            "discharge_rate_rel_error": scalars.get("discharge_rate_rel_error", float("nan")),
+            "emd_mean": scalars["emd_mean"],
+            "leaked_particles": scalars["leaked_particles"],
+        }
+    )
+    serial = rows[0]["wall_s_per_simulated_s"]
+    learned = rows[-1]["wall_s_per_simulated_s"]
+    results = {
+        "liggghts_serial_s_per_simulated_s": serial,
+        "learned_s_per_simulated_s": learned,
+        "learned_speedup_over_serial": serial / learned,
+        "discharge_rate_rel_error": rows[-1]["discharge_rate_rel_error"],
+    }
+    targets = [
+        Target("learned rollout speed / serial LIGGGHTS", serial / learned, ">=", 1.0),
+        Target(
+            "discharge-rate error of that rollout", rows[-1]["discharge_rate_rel_error"], "<=", 0.1
+        ),
+    ]
+    notes = (
+        f"Scene of `{Path(trajectory or sample_files('hopper', 'test')[0]).name}` "
+        f"({truth.num_particles} particles, {simulated:g} s recorded, frames every "
+        f"{truth.frame_dt * 1e3:g} ms, DEM dt {scene.dem_dt:g} s); model `{ckpt}`; "
+        f"{threads} torch threads."
+    )
+    fig, ax = plt.subplots(figsize=(6, 3))
+    ax.barh([r["simulator"] for r in rows], [r["wall_s_per_simulated_s"] for r in rows])
+    ax.set_xlabel("wall s per simulated s")
+    fig.tight_layout()
+    return SuiteResult(rows, results, targets, fig, notes)
