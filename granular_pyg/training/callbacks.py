@@ -6,7 +6,7 @@ import lightning as L
 import numpy as np
 from matplotlib.figure import Figure
 
-from granular_pyg.inference import matching_frames, rollout_trajectory
+from granular_pyg.inference import matching_frames, rollout_trajectory, time_step_multiple
 from granular_pyg.metrics import emd
 
 __all__ = ["RolloutValidation", "rollout_figure"]
@@ -35,6 +35,13 @@ def rollout_figure(truth: np.ndarray, pred: np.ndarray, title: str):
     return fig
 
 
+def _emd(truth: np.ndarray, pred: np.ndarray) -> float:
+    """W2^2 (m^2), NaN when either set is empty (a hopper drained in one but not the other)."""
+    if not (np.isfinite(truth).all(1).any() and np.isfinite(pred).all(1).any()):
+        return float("nan")
+    return emd(truth, pred)
+
+
 class RolloutValidation(L.Callback):
     """Every ``every_n_epochs`` epochs, roll the model out ``steps`` learned steps on a
     validation trajectory and log ``val_rollout/emd`` (W2^2, m^2, at the last step and at
@@ -61,7 +68,9 @@ class RolloutValidation(L.Callback):
         sim = pl_module.sim
         was_training = sim.training
         sim.eval()
-        rollout = rollout_trajectory(sim, traj, self.steps, progress=False)
+        k = time_step_multiple(sim, traj.frame_dt)
+        available = max(0, (traj.num_frames - 1 - sim.history * k) // k)
+        rollout = rollout_trajectory(sim, traj, min(self.steps, available), progress=False)
         sim.train(was_training)
         first, steps = rollout.metadata["initial_frames"], rollout.metadata["steps"]
         if steps == 0:
@@ -70,10 +79,10 @@ class RolloutValidation(L.Callback):
         truth = traj.positions[matching_frames(traj, rollout)[first:]]
         both = np.isfinite(truth).all(-1) & np.isfinite(pred).all(-1)
         mse = float(np.mean((truth[both] - pred[both]) ** 2)) if both.any() else float("nan")
-        metrics = {"val_rollout/position_mse": mse, "val_rollout/emd": emd(truth[-1], pred[-1])}
+        metrics = {"val_rollout/position_mse": mse, "val_rollout/emd": _emd(truth[-1], pred[-1])}
         step = 1
         while step <= steps:
-            metrics[f"val_rollout/emd_step_{step}"] = emd(truth[step - 1], pred[step - 1])
+            metrics[f"val_rollout/emd_step_{step}"] = _emd(truth[step - 1], pred[step - 1])
             step *= 2
         for name, value in metrics.items():
             pl_module.log(name, value, rank_zero_only=True)

@@ -233,3 +233,15 @@ def test_ddp_on_two_cpu_processes_reduces_the_logged_loss(tmp_path):
     # Each rank validated different windows; the logged (reduced) values agree.
     assert ranks[0]["val/loss"] == pytest.approx(ranks[1]["val/loss"], rel=1e-6)
     assert ranks[0]["train/loss"] == pytest.approx(ranks[1]["train/loss"], rel=1e-6)
+
+
+@pytest.mark.slow
+def test_validation_rollout_stops_at_the_end_of_a_short_trajectory(tmp_path):
+    """With k = 8 the 0.5 s validation trajectory holds 20 learned steps after the initial
+    states: asking for 40 rolls out those 20 instead of failing."""
+    cfg = _steps_cfg(
+        3, "data.step=8", "rollout_validation.every_n_epochs=1", "rollout_validation.steps=40"
+    )
+    train(cfg, tmp_path)
+    tags = _events(tmp_path).Tags()["scalars"]
+    assert "val_rollout/emd_step_16" in tags and "val_rollout/emd_step_32" not in tags
