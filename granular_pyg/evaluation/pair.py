@@ -84,7 +84,11 @@ def evaluate_pair(
 
     kind = truth.scene.name
     axis = MIXING_AXIS.get(kind, 0)
-    mixing_frame = min(MIXING_FRAME, len(frames) - 1)
+    # The paper's t0 = 30, or the last frame the truth still has particles (a drained hopper).
+    occupied = np.flatnonzero(np.isfinite(t_pos).all(-1).any(-1))
+    if occupied.size == 0:
+        raise InputError("truth: no particle is present in any frame of the rollout's span")
+    mixing_frame = min(MIXING_FRAME, int(occupied[-1]))
     classes = metrics.mixing_classes(t_pos, frame=mixing_frame, axis=axis)
     ent_t = metrics.mixing_entropy_curve(t_pos, classes)
     ent_p = metrics.mixing_entropy_curve(p_pos, classes)

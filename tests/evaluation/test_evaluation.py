@@ -132,3 +132,9 @@ def test_variant_table_needs_the_reference_and_real_folders(tmp_path):
         variant_table([run])
     with pytest.raises(InputError, match="not an evaluation folder"):
         variant_table([tmp_path])
+
+
+def test_a_long_step_rollout_of_a_drained_hopper_takes_the_mixing_classes_earlier(hopper):
+    """k = 8 on the 0.5 s hopper: the truth is empty by rollout frame 25 (< t0 = 30)."""
+    ev = evaluate_pair(hopper, _as_rollout(hopper, k=8, frames=26))
+    assert ev.mixing_frame < 30 and ev.scalars["mixing_entropy_error"] == 0
