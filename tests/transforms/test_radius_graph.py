@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import importlib
 import math
 
+import numpy as np
 import pytest
 import torch
 from hypothesis import given, settings
@@ -17,7 +20,29 @@ from granular_pyg.transforms.radius_graph import (
     radius_graph,
 )
 
+rg = importlib.import_module("granular_pyg.transforms.radius_graph")
+
 BACKENDS = ("scipy", "torch_cluster")
+
+
+@contextlib.contextmanager
+def _slabs_from(points_per_thread: int):
+    """Split the scipy search into slabs from ``points_per_thread`` points per thread on."""
+    old, rg.SLAB_POINTS = rg.SLAB_POINTS, points_per_thread
+    try:
+        yield
+    finally:
+        rg.SLAB_POINTS = old
+
+
+@contextlib.contextmanager
+def _torch_threads(threads: int):
+    old = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
 
 
 def brute_force(pos: torch.Tensor, radius: float) -> torch.Tensor:
@@ -144,6 +169,37 @@ def test_packed_particles_both_backends_identical(seed, dtype):
     by_scipy = radius_graph(pos, 0.0075, backend="scipy")
     assert torch.equal(by_scipy, radius_graph(pos, 0.0075, backend="torch_cluster"))
     assert torch.equal(by_scipy, brute_force(pos, 0.0075))
+
+
+@settings(max_examples=150, deadline=None)
+@given(point_clouds(), st.integers(2, 4))
+def test_slab_parallel_scipy_search_equals_brute_force(cloud, threads):
+    # The scipy search cut into one slab per thread (forced on small clouds): pairs across slab
+    # faces, points exactly on a face and duplicates straddling it must all come out once.
+    pos, radius = cloud
+    with _slabs_from(2), _torch_threads(threads):
+        got = radius_graph(pos, radius, backend="scipy")
+    assert torch.equal(got, brute_force(pos, radius))
+
+
+def test_slab_search_is_used_and_exact_on_a_long_packed_bed():
+    # 12 x 4 x 4 lattice columns: thick enough for 3 slabs of >= 1 cut-off each.
+    g = torch.Generator().manual_seed(3)
+    pos = torch.cartesian_prod(
+        torch.arange(36.0), torch.arange(4.0), torch.arange(4.0)
+    ) * 0.003 + 0.0006 * (torch.rand(36 * 16, 3, generator=g) - 0.5)
+    pos = pos.float()
+    x = pos[:, 0].double().numpy()
+    assert rg._slabs(x, 3, rg._search_radius(0.0075, pos.dtype)) is not None
+    with _slabs_from(2), _torch_threads(3):
+        got = radius_graph(pos, 0.0075, backend="scipy")
+    assert torch.equal(got, brute_force(pos, 0.0075))
+
+
+def test_slabs_thinner_than_the_cut_off_fall_back_to_one_search():
+    x = np.linspace(0.0, 0.01, 100)  # 1 cm long: 4 slabs would be 2.5 mm thick
+    assert rg._slabs(x, 4, 0.0075) is None
+    assert rg._slabs(x, 2, 0.0075) is not None  # two slabs share one face: any thickness
 
 
 def test_edges_are_symmetric_sorted_and_loop_free():
