@@ -23,11 +23,12 @@ import matplotlib.pyplot as plt
 import torch
 
 from granular_pyg.bench.report import SuiteResult, Target
+from granular_pyg.dem import DemRun
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair
 from granular_pyg.inference import load_simulator, rollout_trajectory
-from granular_pyg.io import read_trajectory
+from granular_pyg.io import Trajectory, read_trajectory
 from granular_pyg.samples import sample_files
 
 LOOP_TIME = re.compile(r"^Loop time of ([0-9.eE+-]+) on (\d+) procs for (\d+) steps", re.M)
@@ -41,6 +42,21 @@ def recorded_loop_time(log: Path) -> float:
     return sum(loops[1:])
 
 
+def rerun_liggghts(truth: Trajectory, mpi_procs: int = 1) -> tuple[float, DemRun]:
+    """Run the Scene and seed of ``truth`` again with LIGGGHTS on ``mpi_procs`` processes.
+
+    Returns:
+        ``(recorded_s, result)``: LIGGGHTS's loop time of the recorded phase (s, the
+        fill-and-settle run left out) and the run's :class:`DemRun`.
+    """
+    seed = int(truth.metadata.get("seed", 0))
+    with tempfile.TemporaryDirectory(prefix="bench_liggghts_") as tmp:
+        _, dem = simulate(
+            truth.scene, seed, tmp, keep_workdir=True, mpi_procs=mpi_procs, progress=False
+        )
+        return recorded_loop_time(Path(tmp) / "log.liggghts"), dem
+
+
 def run(
     ckpt: str,
     trajectory: str | None = None,
@@ -52,13 +68,10 @@ def run(
     """Run the suite; see the module docstring. ``repeats`` is unused (one run each)."""
     truth = read_trajectory(trajectory or sample_files("hopper", "test")[0])
     scene = truth.scene
-    seed = int(truth.metadata.get("seed", 0))
     simulated = float(truth.times[-1] - truth.times[0])
     rows, results = [], {}
     for procs in mpi_procs:
-        with tempfile.TemporaryDirectory(prefix="bench_liggghts_") as tmp:
-            _, dem = simulate(scene, seed, tmp, keep_workdir=True, mpi_procs=procs, progress=False)
-            loop = recorded_loop_time(Path(tmp) / "log.liggghts")
+        loop, dem = rerun_liggghts(truth, procs)
         rows.append(
             {
                 "simulator": f"LIGGGHTS, {procs} MPI process{'es' if procs > 1 else ''}",
