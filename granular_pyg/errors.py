@@ -15,6 +15,22 @@ class InputError(ValueError):
     """Bad user input (wrong shape or dtype, NaN/Inf, degenerate or empty data)."""
 
 
+class NonFiniteError(ArithmeticError):
+    """A learned step predicted NaN or Inf for a particle that had not left.
+
+    Attributes:
+        step: index of the failing learned step in the rollout (0 = the first prediction).
+        particle_ids: indices (rows of the rollout's particle set) of the failing particles.
+        positions_so_far: ``[step, N, 3]`` the rollout's predictions before the failing step
+            (set by the rollout), so that nothing computed is lost.
+    """
+
+    def __init__(self, message: str, particle_ids: list[int], step: int | None = None) -> None:
+        super().__init__(message)
+        self.particle_ids, self.step = particle_ids, step
+        self.positions_so_far: torch.Tensor | None = None
+
+
 def check_tensor(
     name: str,
     value: torch.Tensor,
@@ -52,4 +68,31 @@ def check_tensor(
         raise InputError(
             f"{name}: {len(bad)} row(s) contain NaN or Inf (first rows: {first}); "
             "remove or repair them before calling"
+        )
+
+
+#: Largest float spacing at the scene's coordinates, as a fraction of the cut-off radius.
+COORDINATE_ULP_FRACTION = 1e-4
+
+
+def check_coordinates_fit(name: str, pos: torch.Tensor, radius: float) -> None:
+    """Refuse coordinates too large for ``pos.dtype`` to resolve the motion of one step.
+
+    Velocities are differences of positions a step apart, so the float spacing (ulp) at the
+    scene's largest coordinate must stay below ``COORDINATE_ULP_FRACTION`` of the cut-off
+    ``radius`` (m): in float32 with a 7.5 mm cut-off, coordinates up to about 6 m.
+
+    Raises:
+        InputError: naming the largest coordinate, the limit and the fixes.
+    """
+    if not pos.numel():
+        return
+    largest = float(pos.detach().abs().max())
+    ulp = torch.finfo(pos.dtype).eps * largest
+    if ulp > COORDINATE_ULP_FRACTION * radius:
+        limit = COORDINATE_ULP_FRACTION * radius / torch.finfo(pos.dtype).eps
+        raise InputError(
+            f"{name}: coordinates up to {largest:.3g} m, beyond the {limit:.3g} m that "
+            f"{str(pos.dtype).removeprefix('torch.')} resolves for a {radius:g} m cut-off; "
+            "move the scene's origin into it, or roll out with dtype=float64"
         )

@@ -18,7 +18,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from granular_pyg.errors import InputError
+from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.io import Trajectory
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator
@@ -100,6 +100,11 @@ def rollout_trajectory(
         ``start_frame``: the ``H + 1`` initial states copied from ``truth``, then the
         predictions (NaN for particles that have left); velocities are backward differences
         (m/s); metadata records the rollout's settings.
+
+    Raises:
+        InputError: no Scene, too few initial frames, a bad ``steps``.
+        NonFiniteError: the model predicted NaN/Inf; its ``partial`` attribute holds the
+            Trajectory up to the failing step (metadata ``failed_step``), nothing is lost.
     """
     if truth.scene is None:
         raise InputError("truth: a rollout needs the trajectory's Scene (walls); it has none")
@@ -119,24 +124,36 @@ def rollout_trajectory(
     seq = seq.permute(1, 0, 2).contiguous()
     dt = float(sim.dt)
     t0 = float(truth.times[initial[-1]])
-    pred = sim.rollout(
-        seq, WallSet(truth.scene), t0, steps, truth.scene.outflow_z, progress=progress, skin=skin
-    )
+    settings = {"start_frame": int(start_frame), "dtype": str(dtype).removeprefix("torch.")}
+    settings |= {"skin": skin, "time_step_multiple": k}
+    try:
+        pred = sim.rollout(
+            seq, WallSet(truth.scene), t0, steps, truth.scene.outflow_z, progress, skin
+        )
+    except NonFiniteError as exc:
+        done = exc.positions_so_far
+        exc.partial = _prediction(truth, initial, done, dt, settings | {"failed_step": exc.step})
+        raise
+    return _prediction(truth, initial, pred, dt, settings)
+
+
+def _prediction(
+    truth: Trajectory, initial: np.ndarray, pred: torch.Tensor, dt: float, settings: dict
+) -> Trajectory:
+    """The Trajectory of a rollout: ``truth``'s frames ``initial``, then ``pred [S, N, 3]``."""
+    history = len(initial) - 1
     positions = np.concatenate([truth.positions[initial], pred.float().cpu().numpy()])
     velocities = np.full_like(positions, np.nan)
     velocities[: history + 1] = truth.velocities[initial]
     velocities[history + 1 :] = np.diff(positions[history:], axis=0) / dt
-    times = float(truth.times[start_frame]) + dt * np.arange(len(positions))
+    times = float(truth.times[initial[0]]) + dt * np.arange(len(positions))
     metadata = {
         "source": "granular_pyg.rollout",
         "truth_metadata": truth.metadata,
-        "time_step_multiple": k,
-        "start_frame": int(start_frame),
         "initial_frames": int(history + 1),
-        "steps": int(steps),
+        "steps": int(pred.shape[0]),
         "dt": dt,
-        "dtype": str(dtype).removeprefix("torch."),
-        "skin": skin,
+        **settings,
     }
     return dataclasses.replace(
         truth,

@@ -14,7 +14,7 @@ import torch
 from omegaconf import DictConfig
 
 from granular_pyg.data import load_split
-from granular_pyg.errors import InputError
+from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.inference import load_simulator, rollout_trajectory
 from granular_pyg.io import Trajectory, export_paraview, read_trajectory, write_trajectory
 
@@ -40,17 +40,24 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     sim, config = load_simulator(cfg.ckpt)
     source = Path(cfg.trajectory) if cfg.trajectory else default_trajectory(config)
     truth = read_trajectory(source)
-    pred = rollout_trajectory(
-        sim,
-        truth,
-        cfg.steps,
-        cfg.start_frame,
-        progress=cfg.progress,
-        dtype=DTYPES[cfg.dtype],
-        skin=cfg.skin,
-    )
-    pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
     out = Path(cfg.out)
+    try:
+        pred = rollout_trajectory(
+            sim,
+            truth,
+            cfg.steps,
+            cfg.start_frame,
+            progress=cfg.progress,
+            dtype=DTYPES[cfg.dtype],
+            skin=cfg.skin,
+        )
+    except NonFiniteError as exc:
+        partial = out.with_suffix(".partial.h5")
+        exc.partial.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
+        write_trajectory(exc.partial, partial)
+        exc.args = (f"{exc.args[0]}\nthe {exc.step} steps before it: {partial}",)
+        raise
+    pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
     write_trajectory(pred, out)
     steps = pred.metadata["steps"]
     print(f"rollout: {steps} learned steps of {pred.metadata['dt'] * 1e3:g} ms from {source}")

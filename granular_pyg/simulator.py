@@ -31,7 +31,7 @@ import torch
 from torch import nn
 from torch_geometric.data import Batch, Data
 
-from granular_pyg.errors import InputError, check_tensor
+from granular_pyg.errors import InputError, NonFiniteError, check_coordinates_fit, check_tensor
 from granular_pyg.nn import EncodeProcessDecode, Processor
 from granular_pyg.scenes import WallSet
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
@@ -238,9 +238,34 @@ class LearnedSimulator(nn.Module):
         out = torch.full_like(pos_seq[:, -1], float("nan"))
         if not bool(present.any()):
             return out
+        nan = torch.isnan(pos_seq)
+        gone = nan.all(dim=2)  # [N, H + 1]: positions of a particle that has left
+        invalid = (
+            (nan.any(dim=2) & ~gone).any(dim=1)  # some coordinates NaN, not all
+            | (gone[:, :-1] & ~gone[:, 1:]).any(dim=1)  # back after leaving
+            | torch.isinf(pos_seq).any(dim=2).any(dim=1)
+        )
+        if bool(invalid.any()):
+            rows = invalid.nonzero()[:, 0]
+            raise InputError(
+                f"pos_seq: {len(rows)} particle(s) with Inf, NaN in only some coordinates, "
+                f"or finite after NaN: rows {rows[:10].tolist()}; a particle that has left "
+                "is NaN in every coordinate from then on, and Inf is never allowed"
+            )
         seq = pos_seq[present]
+        check_coordinates_fit("pos_seq", seq, self.radius_graph.radius)
         ids = present.nonzero().squeeze(1) if neighbours is not None else None
         acc = self.predict_acceleration(seq, walls, time, neighbours, ids).double()
+        finite = torch.isfinite(acc).all(dim=1)
+        if not bool(finite.all()):
+            bad = present.nonzero()[:, 0][~finite].tolist()
+            raise NonFiniteError(
+                f"the model predicted NaN/Inf accelerations at t = {time:g} s for "
+                f"{len(bad)} particle(s), rows {bad[:10]}; the rollout stops here (its "
+                "predictions so far are kept). Check the checkpoint's training, or roll out "
+                "with dtype=float64",
+                bad,
+            )
         last_vel = self.velocities(seq[:, -2:])[:, 0]
         next_vel = last_vel + self.dt * acc
         out[present] = (seq[:, -1].double() + self.dt * next_vel).to(pos_seq.dtype)
@@ -281,7 +306,15 @@ class LearnedSimulator(nn.Module):
         rg = self.radius_graph
         neighbours = None if skin is None else NeighbourList(rg.radius, skin, rg.backend)
         for s in tqdm(range(steps), desc="rollout", unit="step", disable=not progress):
-            nxt = self.step(seq, walls, time + s * dt, outflow_z, neighbours)
+            try:
+                nxt = self.step(seq, walls, time + s * dt, outflow_z, neighbours)
+            except NonFiniteError as exc:
+                exc.step = s
+                exc.args = (f"learned step {s}: {exc.args[0]}",)
+                exc.positions_so_far = (
+                    torch.stack(out) if out else pos_seq.new_zeros((0, *pos_seq.shape[::2]))
+                )
+                raise
             out.append(nxt)
             seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
         return torch.stack(out) if out else pos_seq.new_zeros((0, *pos_seq.shape[::2]))
