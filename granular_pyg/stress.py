@@ -1,0 +1,313 @@
+"""``python -m granular_pyg.stress``: long rollouts of trained models, checked at every step.
+
+Each case rolls a checkpoint out over the Scene of a ground-truth trajectory far beyond the
+trajectory's end (the walls keep following the Scene: the drum keeps turning; a hopper case can
+keep its lid closed, a resting bed) and checks every learned step for:
+
+- NaN/Inf: the step's :class:`~granular_pyg.errors.NonFiniteError` (step and particle rows);
+- kinetic-energy growth: kinetic energy (J, from the step's displacement) against the ground
+  truth's largest, failing above ``ke_limit`` times it;
+- leaked particles: centres beyond a container wall by more than the smallest radius
+  (:func:`granular_pyg.metrics.leaked_mask`), judged before the outflow removes anyone;
+- particle-count drift: particles that vanished other than through the Scene's outflow;
+
+and reports the first step where anything went wrong. With ``compare_float64`` a float64
+rollout runs in lockstep and their divergence (RMS distance between the two, m) is recorded
+against steps. Writes ``stress.json``, ``stress.csv`` (per sampled step), ``stress.md`` and
+``stress.png`` into the run folder.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import math
+import sys
+from pathlib import Path
+
+import hydra
+import numpy as np
+import torch
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import DictConfig
+
+from granular_pyg.errors import InputError, NonFiniteError
+from granular_pyg.inference import load_simulator, time_step_multiple
+from granular_pyg.io import Trajectory, atomic_write, read_trajectory
+from granular_pyg.metrics import leaked_mask
+from granular_pyg.samples import sample_files
+from granular_pyg.scenes import WallSet
+
+__all__ = ["kinetic_energy", "stress_case"]
+
+
+def kinetic_energy(prev: torch.Tensor, nxt: torch.Tensor, mass: torch.Tensor, dt: float) -> float:
+    """Kinetic energy (J) of the particles present in both ``prev`` and ``nxt`` ``[N, 3]`` (m),
+    with velocities ``(nxt - prev) / dt`` (m/s) and ``mass [N]`` (kg)."""
+    both = torch.isfinite(prev).all(1) & torch.isfinite(nxt).all(1)
+    vel = (nxt[both].double() - prev[both].double()) / dt
+    return float(0.5 * (mass[both] * (vel * vel).sum(1)).sum())
+
+
+def _masses(truth: Trajectory) -> torch.Tensor:
+    density = truth.scene.materials.density if truth.scene is not None else 2500.0
+    return torch.from_numpy(4.0 / 3.0 * math.pi * truth.radii.astype(np.float64) ** 3 * density)
+
+
+def _truth_max_kinetic_energy(truth: Trajectory) -> float:
+    mass = _masses(truth).numpy()
+    vel = truth.velocities.astype(np.float64)
+    energy = 0.5 * np.nansum(mass[None] * (vel * vel).sum(-1), axis=1)
+    return float(energy.max())
+
+
+def _without_removals(truth: Trajectory) -> Trajectory:
+    """``truth`` with every removable wall (the hopper's lid) kept for good."""
+    scene = truth.scene
+    walls = [dataclasses.replace(w, removal_time=None) for w in scene.walls]
+    return dataclasses.replace(truth, scene=dataclasses.replace(scene, walls=walls))
+
+
+def stress_case(
+    sim,
+    truth: Trajectory,
+    steps: int,
+    resting: bool = False,
+    compare_float64: bool = True,
+    ke_limit: float = 10.0,
+    sample_every: int = 16,
+    progress: bool = True,
+) -> tuple[dict, list[dict]]:
+    """Roll ``sim`` out ``steps`` learned steps over ``truth``'s Scene, checking every step.
+
+    Args:
+        sim: a trained :class:`~granular_pyg.simulator.LearnedSimulator`.
+        truth: ground truth whose first ``H + 1`` states (every k-th frame) start the rollout.
+        steps: learned steps (any number; the Scene's walls are posed at every step's time).
+        resting: keep removable walls (the hopper's lid) for good and start from the first
+            frame at rest (its position repeated, zero velocity): a resting bed.
+        compare_float64: also roll out in float64 and record the divergence.
+        ke_limit: fail when the kinetic energy exceeds this times the truth's largest.
+        sample_every: steps between the sampled rows (the checks run every step).
+        progress: show a progress bar.
+
+    Returns:
+        ``(summary, rows)``: the summary (``first_failure_step`` -1 when none, ``failure``,
+        maxima, counts) and one row per sampled step (``step``, ``time_s``,
+        ``kinetic_energy_j``, ``present``, ``leaked``, ``drift``, ``divergence_m``).
+    """
+    from tqdm.auto import tqdm
+
+    if truth.scene is None:
+        raise InputError("truth: a stress rollout needs the trajectory's Scene (walls)")
+    if steps < 1:
+        raise InputError(f"steps: expected a positive number of learned steps, got {steps}")
+    closers = {w.name for w in truth.scene.walls if w.removal_time is not None}  # the lid
+    if resting:
+        truth = _without_removals(truth)
+    scene, walls = truth.scene, WallSet(truth.scene)
+    k = time_step_multiple(sim, truth.frame_dt)
+    initial = np.arange(0, (sim.history + 1) * k, k)
+    if initial[-1] >= truth.num_frames:
+        raise InputError(f"truth: fewer than {sim.history + 1} initial frames every {k}")
+    if resting:
+        initial = np.zeros_like(initial)
+    start = torch.from_numpy(truth.positions[initial]).permute(1, 0, 2).contiguous()
+    runs = {"float32": start.float()}
+    if compare_float64:
+        runs["float64"] = start.double()
+    dt, t0 = float(sim.dt), float(truth.times[initial[-1]])
+    mass, tol = _masses(truth), float(truth.radii.min())
+    ke_truth = _truth_max_kinetic_energy(truth)
+    outflow = scene.outflow_z
+    rows, leaked_ever = [], np.zeros(truth.num_particles, dtype=bool)
+    summary = {
+        "steps": steps,
+        "k": k,
+        "dt_s": dt,
+        "particles": truth.num_particles,
+        "resting": resting,
+        "truth_max_kinetic_energy_j": ke_truth,
+        "first_failure_step": -1,
+        "failure": "",
+        "max_kinetic_energy_ratio": 0.0,
+        "left_through_outflow": 0,
+        "drift": 0,
+        "max_divergence_m": 0.0,
+    }
+
+    def fail(step: int, why: str) -> None:
+        if summary["first_failure_step"] < 0:
+            summary["first_failure_step"], summary["failure"] = step, why
+
+    done = 0
+    with torch.inference_mode():
+        for s in tqdm(range(steps), desc="stress", unit="step", disable=not progress):
+            time = t0 + s * dt
+            nxt = {}
+            try:
+                for name, seq in runs.items():
+                    nxt[name] = sim.step(seq, walls, time)
+            except NonFiniteError as exc:
+                fail(s, f"NaN/Inf prediction ({name}) for particle rows {exc.particle_ids[:10]}")
+                break
+            seq, new = runs["float32"], nxt["float32"]
+            before = torch.isfinite(seq[:, -1]).all(1)
+            out = new[:, 2] < outflow if outflow is not None else torch.zeros_like(before)
+            for name in nxt:
+                if outflow is not None:
+                    nxt[name][nxt[name][:, 2] < outflow] = float("nan")
+            after = torch.isfinite(nxt["float32"]).all(1)
+            # Reaching the outflow through a closed outlet is a leak too.
+            now = leaked_mask(nxt["float32"].numpy()[None], scene, np.array([time + dt]), tol)[0]
+            if any(w.present(time + dt) for w in scene.walls if w.name in closers):
+                now |= (before & out).numpy()
+            if now.any():
+                fail(s, f"{int(now.sum())} particle(s) leaked through a wall")
+            leaked_ever |= now
+            left = int((before & out).sum())
+            drift = int(before.sum()) - int(after.sum()) - left
+            summary["left_through_outflow"] += left
+            summary["drift"] += drift
+            if drift:
+                fail(s, f"{drift} particle(s) vanished other than through the outflow")
+            energy = kinetic_energy(seq[:, -1], nxt["float32"], mass, dt)
+            ratio = energy / ke_truth if ke_truth > 0 else math.inf * (energy > 0)
+            summary["max_kinetic_energy_ratio"] = max(summary["max_kinetic_energy_ratio"], ratio)
+            if ratio > ke_limit:
+                fail(s, f"kinetic energy {ratio:.3g} x the truth's largest")
+            divergence = math.nan
+            if compare_float64:
+                a, b = nxt["float32"].double(), nxt["float64"]
+                both = torch.isfinite(a).all(1) & torch.isfinite(b).all(1)
+                if bool(both.any()):
+                    divergence = float(((a[both] - b[both]) ** 2).sum(1).mean().sqrt())
+                    summary["max_divergence_m"] = max(summary["max_divergence_m"], divergence)
+            for name in runs:
+                runs[name] = torch.cat([runs[name][:, 1:], nxt[name][:, None]], dim=1)
+            done = s + 1
+            if s % sample_every == 0 or s == steps - 1:
+                rows.append(
+                    {
+                        "step": s,
+                        "time_s": time + dt,
+                        "kinetic_energy_j": energy,
+                        "kinetic_energy_ratio": ratio,
+                        "present": int(after.sum()),
+                        "leaked": int(leaked_ever.sum()),
+                        "drift": summary["drift"],
+                        "divergence_m": divergence,
+                    }
+                )
+    summary["steps_done"] = done
+    summary["leaked_particles"] = int(leaked_ever.sum())
+    summary["present_at_end"] = rows[-1]["present"] if rows else truth.num_particles
+    return summary, rows
+
+
+def _figure(results: dict[str, tuple[dict, list[dict]]]):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = (
+        ("kinetic_energy_ratio", "kinetic energy / truth's largest"),
+        ("divergence_m", "float32 - float64 RMS distance (m)"),
+        ("present", "particles present"),
+        ("leaked", "leaked particles (ever)"),
+    )
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4))
+    for name, (summary, rows) in results.items():
+        steps = [r["step"] + 1 for r in rows]
+        for ax, (key, label) in zip(axes, panels, strict=True):
+            ax.plot(steps, [r[key] for r in rows], label=name, lw=1)
+            ax.set_xscale("log", base=2)
+            ax.set_xlabel("learned step")
+            ax.set_ylabel(label)
+        if summary["first_failure_step"] >= 0:
+            for ax in axes:
+                ax.axvline(summary["first_failure_step"] + 1, ls=":", lw=1, color="k")
+    for ax in axes[:2]:
+        ax.set_yscale("log")
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
+    lines = [
+        "# Stress test",
+        "",
+        f"Command: `{command}`",
+        "",
+        "| case | steps done | k | particles | first failure | max KE / truth | leaked "
+        "| left (outflow) | drift | max float32-float64 divergence (m) |",
+        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|",
+    ]
+    for name, (s, _) in results.items():
+        first = "none" if s["first_failure_step"] < 0 else f"step {s['first_failure_step']}: "
+        first += s["failure"]
+        lines.append(
+            f"| {name} | {s['steps_done']:,} / {s['steps']:,} | {s['k']} | {s['particles']} "
+            f"| {first} | {s['max_kinetic_energy_ratio']:.3g} | {s['leaked_particles']} "
+            f"| {s['left_through_outflow']} | {s['drift']} | {s['max_divergence_m']:.3g} |"
+        )
+    lines += ["", "![stress](stress.png)", ""]
+    return "\n".join(lines)
+
+
+def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
+    """Run every case of ``cfg`` and write the report into ``out_dir``; returns the summaries."""
+    torch.set_num_threads(cfg.threads)
+    steps = int(cfg.quick_steps if cfg.quick else cfg.steps)
+    results = {}
+    for name, case in cfg.cases.items():
+        sim, _ = load_simulator(case.ckpt)
+        source = case.trajectory or sample_files(case.sample, "test")[0]
+        truth = read_trajectory(source)
+        print(f"{name}: {steps} learned steps of {case.ckpt} on {source}")
+        results[name] = stress_case(
+            sim,
+            truth,
+            steps,
+            resting=bool(case.get("resting", False)),
+            compare_float64=bool(cfg.compare_float64),
+            ke_limit=float(cfg.ke_limit),
+            sample_every=int(cfg.sample_every),
+            progress=bool(cfg.progress),
+        )
+    out_dir = Path(out_dir)
+    command = "python -m granular_pyg.stress " + " ".join(sys.argv[1:])
+    with atomic_write(out_dir / "stress.json") as fh:
+        json.dump({n: s for n, (s, _) in results.items()} | {"command": command}, fh, indent=2)
+    buf = io.StringIO()
+    writer = None
+    for name, (_, rows) in results.items():
+        for row in rows:
+            if writer is None:
+                writer = csv.DictWriter(buf, fieldnames=["case", *row])
+                writer.writeheader()
+            writer.writerow({"case": name} | row)
+    with atomic_write(out_dir / "stress.csv") as fh:
+        fh.write(buf.getvalue())
+    with atomic_write(out_dir / "stress.png", "wb") as fh:
+        _figure(results).savefig(fh, format="png", dpi=110, bbox_inches="tight")
+    with atomic_write(out_dir / "stress.md") as fh:
+        fh.write(_markdown(results, command))
+    for name, (s, _) in results.items():
+        first = "no failure" if s["first_failure_step"] < 0 else s["failure"]
+        print(f"{name}: {s['steps_done']} steps, {first}")
+    print(f"report: {out_dir / 'stress.md'}")
+    return {n: s for n, (s, _) in results.items()}
+
+
+@hydra.main(version_base="1.3", config_path="../conf", config_name="stress")
+def main(cfg: DictConfig) -> None:
+    stress(cfg, Path(HydraConfig.get().runtime.output_dir))
+
+
+if __name__ == "__main__":
+    main()
