@@ -17,7 +17,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from granular_pyg.errors import InputError
-from granular_pyg.training import RolloutValidation, SimulatorModule
+from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
 
 __all__ = ["train"]
 
@@ -91,7 +91,11 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     if logger:
         callbacks.append(L.pytorch.callbacks.LearningRateMonitor(logging_interval="step"))
     trainer = instantiate(
-        cfg.trainer, logger=logger, callbacks=callbacks, default_root_dir=str(out)
+        cfg.trainer,
+        logger=logger,
+        callbacks=callbacks,
+        default_root_dir=str(out),
+        plugins=[AtomicCheckpointIO()],
     )
     trainer.fit(module, datamodule=datamodule, ckpt_path=cfg.ckpt_path)
     metrics = {k: float(v) for k, v in trainer.callback_metrics.items()}

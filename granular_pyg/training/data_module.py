@@ -16,7 +16,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.transforms import AddRandomWalkNoise
 
-__all__ = ["EpochSampler", "TrajectoryDataModule"]
+__all__ = ["EpochSampler", "ResumableLoader", "TrajectoryDataModule"]
 
 
 class EpochSampler(Sampler[tuple[int, int]]):
@@ -29,6 +29,7 @@ class EpochSampler(Sampler[tuple[int, int]]):
         self.size, self.seed, self.shuffle = size, seed, shuffle
         self.num_samples = size if num_samples is None else int(num_samples)
         self.epoch = 0
+        self.skip_next = 0  # samples the next pass leaves out (a run resumed mid-epoch)
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
@@ -44,7 +45,30 @@ class EpochSampler(Sampler[tuple[int, int]]):
             reps = -(-self.num_samples // self.size)
             perms = torch.cat([torch.randperm(self.size, generator=g) for _ in range(reps)])
             order = perms[: self.num_samples].tolist()
-        return iter([(self.epoch, i) for i in order])
+        skip, self.skip_next = self.skip_next, 0
+        return iter([(self.epoch, i) for i in order[skip:]])
+
+
+class ResumableLoader(DataLoader):
+    """A DataLoader that a run killed mid-epoch resumes where it stopped (Lightning saves its
+    :meth:`state_dict` with each checkpoint and calls :meth:`load_state_dict` on resume).
+
+    Its state is the number of batches of the current epoch the training loop had finished,
+    read through ``progress`` (Lightning's own count, so batches the loop fetched ahead of
+    time do not count). After :meth:`load_state_dict` the next pass leaves them out of its
+    :class:`EpochSampler` (single process; under DDP Lightning replaces the sampler).
+    """
+
+    def __init__(self, *args, progress=None, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.progress = progress
+
+    def state_dict(self) -> dict:
+        return {"batches_done": int(self.progress()) if self.progress else 0}
+
+    def load_state_dict(self, state: dict) -> None:
+        if isinstance(self.sampler, EpochSampler):
+            self.sampler.skip_next = int(state.get("batches_done", 0)) * int(self.batch_size)
 
 
 class _Collate:
@@ -160,22 +184,33 @@ class TrajectoryDataModule(L.LightningDataModule):
         sim.dt.fill_(self.dt)
         self.sim = sim
 
-    def _loader(self, dataset, num_samples, shuffle: bool, noise: float) -> DataLoader:
+    def _loader(self, dataset, num_samples, shuffle: bool, noise: float, **kwargs) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
         collate = _Collate(self.sim, noise, self.resample, self.seed)
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
-        return DataLoader(
+        return (ResumableLoader if kwargs else DataLoader)(
             dataset,
             batch_size=self.batch_size,
             sampler=sampler,
             collate_fn=collate,
             num_workers=self.num_workers,
             persistent_workers=False,
+            **kwargs,
         )
 
+    def _batches_done(self) -> int:
+        """Training batches of the current epoch the loop has finished (Lightning's count)."""
+        return self.trainer.fit_loop.epoch_loop.batch_progress.current.processed
+
     def train_dataloader(self) -> DataLoader:
-        return self._loader(self.train_set, self.train_samples, True, self.noise_std)
+        return self._loader(
+            self.train_set,
+            self.train_samples,
+            True,
+            self.noise_std,
+            progress=self._batches_done if self.trainer is not None else None,
+        )
 
     def val_dataloader(self) -> DataLoader:
         return self._loader(self.val_set, self.val_samples, False, 0.0)

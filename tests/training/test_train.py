@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -245,3 +247,59 @@ def test_validation_rollout_stops_at_the_end_of_a_short_trajectory(tmp_path):
     train(cfg, tmp_path)
     tags = _events(tmp_path).Tags()["scalars"]
     assert "val_rollout/emd_step_16" in tags and "val_rollout/emd_step_32" not in tags
+
+
+@pytest.mark.slow
+def test_training_killed_mid_epoch_resumes_to_the_same_weights(tmp_path):
+    # Six batches an epoch, a checkpoint every step; killed (SIGKILL) after step 3 or 4 of the
+    # first epoch, resumed from last.ckpt, it must end with exactly the uninterrupted weights.
+    common = [
+        *SMALL,
+        "data.train_samples_per_epoch=6",
+        "data.val_samples=1",
+        "data.noise_std=1e-6",
+        "trainer.max_steps=9",
+        "trainer.max_epochs=-1",
+        "trainer.deterministic=true",
+        "checkpoint.every_n_train_steps=1",
+        "rollout_validation.every_n_epochs=1000",
+    ]
+    train(compose("train", common), tmp_path / "straight")
+    killed = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "granular_pyg.train", *common, f"hydra.run.dir={killed}"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        if list((killed / "checkpoints").glob("*step=4.ckpt")):  # last.ckpt: step >= 3
+            break
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    assert proc.wait() == -signal.SIGKILL, "the run ended before it could be killed"
+    last = killed / "checkpoints" / "last.ckpt"
+    step = torch.load(last, map_location="cpu", weights_only=False)["global_step"]
+    assert 3 <= step < 6, f"killed at step {step}: not mid-epoch"
+    train(compose("train", [*common, f"ckpt_path={last}"]), tmp_path / "resumed")
+    want = torch.load(tmp_path / "straight" / "checkpoints" / "last.ckpt", weights_only=False)
+    got = torch.load(tmp_path / "resumed" / "checkpoints" / "last.ckpt", weights_only=False)
+    assert got["global_step"] == want["global_step"] == 9
+    for name, value in want["state_dict"].items():
+        assert torch.equal(got["state_dict"][name], value), name
+
+
+def test_a_checkpoint_write_that_fails_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
+    from granular_pyg.training import AtomicCheckpointIO
+
+    io = AtomicCheckpointIO()
+    path = tmp_path / "last.ckpt"
+    io.save_checkpoint({"global_step": 1}, path)
+
+    def dies_midway(obj, f, *args, **kwargs):
+        f.write(b"partial")
+        raise KeyboardInterrupt  # as if killed while writing
+
+    monkeypatch.setattr(torch, "save", dies_midway)
+    with pytest.raises(KeyboardInterrupt):
+        io.save_checkpoint({"global_step": 2}, path)
+    monkeypatch.undo()
+    assert torch.load(path, weights_only=False)["global_step"] == 1
+    assert [p.name for p in tmp_path.iterdir()] == ["last.ckpt"]  # no temporary file left
