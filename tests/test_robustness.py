@@ -12,6 +12,7 @@ import pytest
 import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from torch_geometric.data import Data
 
 from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.inference import rollout_trajectory
@@ -20,6 +21,7 @@ from granular_pyg.nn import Processor
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import Wall, WallSet
 from granular_pyg.simulator import LearnedSimulator
+from granular_pyg.transforms import AddRandomWalkNoise
 
 R = 0.0075  # m, cut-off
 
@@ -187,10 +189,18 @@ def scenes(draw):
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(scenes(), st.sampled_from(["none", "single", "both"]))
-def test_one_step_on_random_scenes_is_finite_or_a_documented_error(scene, normals):
+@given(scenes(), st.sampled_from(["none", "single", "both"]), st.sampled_from([0.0, 1e-4]))
+def test_noise_and_one_step_on_random_scenes_stay_finite(scene, normals, noise_std):
+    # The training transform (random-walk noise, resampled at walls) on the present particles,
+    # then one step through the graph transforms (radius graph, wall nodes) and the network.
     seq, walls = scene
     present = torch.isfinite(seq).all(2).all(1)
+    if noise_std and bool(present.any()):
+        data = Data(pos_seq=seq[present], target_pos=seq[present, -1], walls=walls, time=0.0)
+        data = AddRandomWalkNoise(noise_std, True, generator=torch.Generator().manual_seed(0))(data)
+        assert torch.isfinite(data.pos_seq).all() and torch.isfinite(data.target_pos).all()
+        seq = seq.clone()
+        seq[present] = data.pos_seq
     out = _model(normals).step(seq, walls, 0.0)
     assert out.shape == (seq.shape[0], 3)
     assert torch.isfinite(out[present]).all()
