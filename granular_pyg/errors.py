@@ -22,13 +22,16 @@ class NonFiniteError(ArithmeticError):
         step: index of the failing learned step in the rollout (0 = the first prediction).
         particle_ids: indices (rows of the rollout's particle set) of the failing particles.
         positions_so_far: ``[step, N, 3]`` the rollout's predictions before the failing step
-            (set by the rollout), so that nothing computed is lost.
+            (set by ``LearnedSimulator.rollout``), so that nothing computed is lost.
+        partial: the same as a Trajectory with its initial states (set by
+            ``inference.rollout_trajectory``; ``python -m granular_pyg.rollout`` writes it).
     """
 
     def __init__(self, message: str, particle_ids: list[int], step: int | None = None) -> None:
         super().__init__(message)
         self.particle_ids, self.step = particle_ids, step
         self.positions_so_far: torch.Tensor | None = None
+        self.partial = None
 
 
 def check_tensor(
