@@ -6,7 +6,8 @@
 2. Training: a small V3 model on the bundled LIGGGHTS hopper sample
    (``python -m granular_pyg.train +experiment=demo``), TensorBoard logs and checkpoints.
 3. Rollout and evaluation of that model on the held-out test trajectory: metrics, figures in
-   the paper's style and a Markdown report.
+   the paper's style and a Markdown report. Without a trained model (``--stages evaluate`` on
+   a fresh machine) the shipped ``pretrained:hopper`` model is evaluated.
 
 Prints where everything is.
 """
@@ -90,7 +91,7 @@ def training_demo(out: Path, overrides: list[str]) -> Path:
     return out / "checkpoints" / "last.ckpt"
 
 
-def evaluation_demo(out: Path, ckpt: Path, steps: int | None = None) -> Path:
+def evaluation_demo(out: Path, ckpt: Path | str, steps: int | None = None) -> Path:
     """Stage 3: roll the model out on the held-out test trajectory and evaluate it; returns
     the report's path."""
     overrides = [f"ckpt={ckpt}", f"out={out}", "splits=[test]"]
@@ -122,7 +123,9 @@ def main(argv: list[str] | None = None) -> dict[str, Path]:
         paths["tensorboard"] = args.out / "train" / "tensorboard"
     if "evaluate" in stages:
         print("== 3. rollout and evaluation on the held-out test trajectory ==")
-        ckpt = paths.get("ckpt", args.out / "train" / "checkpoints" / "last.ckpt")
+        trained = args.out / "train" / "checkpoints" / "last.ckpt"
+        ckpt = paths.get("ckpt") or (trained if trained.is_file() else "pretrained:hopper")
+        print(f"model: {ckpt}")
         paths["report"] = evaluation_demo(args.out / "evaluate", ckpt, args.steps)
     print(f"== done in {time.perf_counter() - start:.0f} s ==")
     for name, path in paths.items():

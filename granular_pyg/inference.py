@@ -20,6 +20,7 @@ from omegaconf import OmegaConf
 
 from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.io import Trajectory
+from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator
 
@@ -30,16 +31,20 @@ def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[Learned
     """The trained simulator of a training checkpoint (``checkpoints/*.ckpt``), in eval mode.
 
     Args:
-        path: a checkpoint written by ``python -m granular_pyg.train``.
+        path: a checkpoint written by ``python -m granular_pyg.train``, or
+            ``pretrained:<name>`` (see :mod:`granular_pyg.pretrained`).
         map_location: device for the weights.
 
     Returns:
         ``(simulator, config)``: the model with its weights, normalisation statistics and ``dt``,
         and the training run's resolved config (a dict).
     """
-    path = Path(path)
+    path = resolve_checkpoint(path)
     if not path.is_file():
-        raise InputError(f"ckpt: no checkpoint at {path}; pass a file from <run>/checkpoints/")
+        raise InputError(
+            f"ckpt: no checkpoint at {path}; pass a file from <run>/checkpoints/ or "
+            "pretrained:hopper / pretrained:drum"
+        )
     try:
         ckpt = torch.load(path, map_location=map_location, weights_only=False)
     except Exception as exc:  # torch raises several types for corrupt files

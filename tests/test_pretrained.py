@@ -1,0 +1,54 @@
+"""Pretrained checkpoints: shipped small, loadable by name, exported without optimiser state."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from granular_pyg.config import compose
+from granular_pyg.errors import InputError
+from granular_pyg.inference import load_simulator, rollout_trajectory
+from granular_pyg.io import read_trajectory
+from granular_pyg.pretrained import PRETRAINED, resolve_checkpoint
+from granular_pyg.pretrained.export import MAX_BYTES, export
+from granular_pyg.samples import sample_files
+
+
+def test_the_shipped_hopper_model_is_small_and_rolls_out_the_bundled_test_trajectory():
+    path = resolve_checkpoint("pretrained:hopper")
+    assert path.stat().st_size <= MAX_BYTES
+    sim, config = load_simulator("pretrained:hopper")
+    assert config["model"]["normals"] == "both" and config["data"]["sample"] == "hopper"
+    truth = read_trajectory(sample_files("hopper", "test")[0])
+    pred = rollout_trajectory(sim, truth, steps=3, progress=False)
+    assert torch.isfinite(torch.from_numpy(pred.positions[-1])).any()
+
+
+def test_unknown_pretrained_name_lists_the_available_ones():
+    with pytest.raises(InputError, match=r"available: .*pretrained:hopper"):
+        resolve_checkpoint("pretrained:silo")
+    assert str(resolve_checkpoint("runs/x/last.ckpt")) == "runs/x/last.ckpt"
+
+
+def test_export_keeps_config_and_weights_only(tmp_path):
+    cfg = compose("train", ["model.latent=16", "data.root=data/somewhere"])
+    sim = instantiate(cfg.model)
+    full = {
+        "config": OmegaConf.to_container(cfg, resolve=True),
+        "state_dict": {f"sim.{k}": v for k, v in sim.state_dict().items()},
+        "optimizer_states": [{"big": torch.zeros(1000)}],
+        "global_step": 7,
+    }
+    torch.save(full, tmp_path / "last.ckpt")
+    out = export(tmp_path / "last.ckpt", "drum", "drum", "a note", folder=tmp_path)
+    assert out.name == PRETRAINED["drum"]
+    slim = torch.load(out, weights_only=False)
+    assert set(slim) == {"config", "state_dict", "pretrained"}
+    assert slim["config"]["data"]["sample"] == "drum" and slim["config"]["data"]["root"] is None
+    assert slim["pretrained"]["trained_on"]["root"] == "data/somewhere"
+    assert slim["pretrained"]["global_step"] == 7
+    loaded, _ = load_simulator(out)
+    for name, value in sim.state_dict().items():
+        assert torch.equal(loaded.state_dict()[name], value)
