@@ -174,7 +174,7 @@ def stress_case(
             if drift:
                 fail(s, f"{drift} particle(s) vanished other than through the outflow")
             energy = kinetic_energy(seq[:, -1], nxt["float32"], mass, dt)
-            ratio = energy / ke_truth if ke_truth > 0 else math.inf * (energy > 0)
+            ratio = energy / ke_truth if ke_truth > 0 else (math.inf if energy > 0 else 0.0)
             summary["max_kinetic_energy_ratio"] = max(summary["max_kinetic_energy_ratio"], ratio)
             if ratio > ke_limit:
                 fail(s, f"kinetic energy {ratio:.3g} x the truth's largest")
