@@ -262,9 +262,9 @@ def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
 def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
     """Run every case of ``cfg`` and write the report into ``out_dir``; returns the summaries."""
     torch.set_num_threads(cfg.threads)
-    steps = int(cfg.quick_steps if cfg.quick else cfg.steps)
     results = {}
     for name, case in cfg.cases.items():
+        steps = int(cfg.quick_steps if cfg.quick else case.get("steps") or cfg.steps)
         sim, _ = load_simulator(case.ckpt)
         source = case.trajectory or sample_files(case.sample, "test")[0]
         truth = read_trajectory(source)
@@ -274,7 +274,7 @@ def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
             truth,
             steps,
             resting=bool(case.get("resting", False)),
-            compare_float64=bool(cfg.compare_float64),
+            compare_float64=bool(case.get("compare_float64", cfg.compare_float64)),
             ke_limit=float(cfg.ke_limit),
             sample_every=int(cfg.sample_every),
             progress=bool(cfg.progress),

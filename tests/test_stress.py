@@ -120,6 +120,7 @@ def test_stress_command_quick_mode_writes_its_report(tmp_path):
             "quick_steps=5",
             "progress=false",
             "~cases.drum",
+            "~cases.drum_precision",
             f"cases.hopper_resting.ckpt={ckpt}",
             f"cases.hopper_discharging.ckpt={ckpt}",
         ],
