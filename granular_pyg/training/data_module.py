@@ -29,7 +29,8 @@ class EpochSampler(Sampler[tuple[int, int]]):
         self.size, self.seed, self.shuffle = size, seed, shuffle
         self.num_samples = size if num_samples is None else int(num_samples)
         self.epoch = 0
-        self.skip_next = 0  # samples the next pass leaves out (a run resumed mid-epoch)
+        # (epoch, samples) a run resumed mid-epoch leaves out of that epoch's next pass
+        self.skip_next: tuple[int, int] | None = None
 
     def set_epoch(self, epoch: int) -> None:
         self.epoch = epoch
@@ -45,7 +46,10 @@ class EpochSampler(Sampler[tuple[int, int]]):
             reps = -(-self.num_samples // self.size)
             perms = torch.cat([torch.randperm(self.size, generator=g) for _ in range(reps)])
             order = perms[: self.num_samples].tolist()
-        skip, self.skip_next = self.skip_next, 0
+        skip = 0
+        if self.skip_next is not None and self.skip_next[0] == self.epoch:
+            skip = self.skip_next[1]
+        self.skip_next = None
         return iter([(self.epoch, i) for i in order[skip:]])
 
 
@@ -53,10 +57,12 @@ class ResumableLoader(DataLoader):
     """A DataLoader that a run killed mid-epoch resumes where it stopped (Lightning saves its
     :meth:`state_dict` with each checkpoint and calls :meth:`load_state_dict` on resume).
 
-    Its state is the number of batches of the current epoch the training loop had finished,
-    read through ``progress`` (Lightning's own count, so batches the loop fetched ahead of
-    time do not count). After :meth:`load_state_dict` the next pass leaves them out of its
-    :class:`EpochSampler` (single process; under DDP Lightning replaces the sampler).
+    Its state is the epoch and the number of its batches the training loop had finished, read
+    through ``progress`` (Lightning's own counts, so batches the loop fetched ahead of time do
+    not count). After :meth:`load_state_dict` the next pass of that epoch leaves them out of its
+    :class:`EpochSampler` (single process; under DDP Lightning replaces the sampler). A
+    checkpoint taken at an epoch's last batch resumes with the next epoch whole: Lightning then
+    starts the next epoch, whose number no longer matches.
     """
 
     def __init__(self, *args, progress=None, **kwargs) -> None:
@@ -64,11 +70,13 @@ class ResumableLoader(DataLoader):
         self.progress = progress
 
     def state_dict(self) -> dict:
-        return {"batches_done": int(self.progress()) if self.progress else 0}
+        epoch, done = self.progress() if self.progress else (0, 0)
+        return {"epoch": int(epoch), "batches_done": int(done)}
 
     def load_state_dict(self, state: dict) -> None:
-        if isinstance(self.sampler, EpochSampler):
-            self.sampler.skip_next = int(state.get("batches_done", 0)) * int(self.batch_size)
+        if isinstance(self.sampler, EpochSampler) and "epoch" in state:
+            done = int(state.get("batches_done", 0)) * int(self.batch_size)
+            self.sampler.skip_next = (int(state["epoch"]), done)
 
 
 class _Collate:
@@ -199,9 +207,10 @@ class TrajectoryDataModule(L.LightningDataModule):
             **kwargs,
         )
 
-    def _batches_done(self) -> int:
-        """Training batches of the current epoch the loop has finished (Lightning's count)."""
-        return self.trainer.fit_loop.epoch_loop.batch_progress.current.processed
+    def _batches_done(self) -> tuple[int, int]:
+        """(epoch, training batches of it the loop has finished), Lightning's counts."""
+        done = self.trainer.fit_loop.epoch_loop.batch_progress.current.processed
+        return self.trainer.current_epoch, done
 
     def train_dataloader(self) -> DataLoader:
         return self._loader(
