@@ -105,6 +105,14 @@ def _within(coords: np.ndarray, i: np.ndarray, j: np.ndarray, r2: np.floating) -
     return total < r2
 
 
+def _split_keys(keys: np.ndarray) -> torch.Tensor:
+    """``[2, E]`` (source, target) of sorted 64-bit keys ``target << 32 | source``."""
+    out = np.empty((2, keys.shape[0]), dtype=np.int64)
+    np.bitwise_and(keys, 0xFFFFFFFF, out=out[0])
+    np.right_shift(keys, 32, out=out[1])
+    return torch.from_numpy(out)
+
+
 def _sorted_by_target(target: torch.Tensor, source: torch.Tensor) -> torch.Tensor:
     """``[2, E]`` edge index sorted by ``(target, source)``: one sort of 64-bit keys
     ``target << 32 | source`` (a value sort is ~3x faster than an argsort) and bit operations
@@ -115,10 +123,19 @@ def _sorted_by_target(target: torch.Tensor, source: torch.Tensor) -> torch.Tenso
         return torch.stack([keys & 0xFFFFFFFF, keys >> 32])
     flat = keys.numpy()
     flat.sort()
-    out = np.empty((2, flat.shape[0]), dtype=np.int64)
-    np.bitwise_and(flat, 0xFFFFFFFF, out=out[0])
-    np.right_shift(flat, 32, out=out[1])
-    return torch.from_numpy(out)
+    return _split_keys(flat)
+
+
+def _sorted_pair_keys(i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Sorted keys ``target << 32 | source`` of both directions of the pairs ``(i, j)``."""
+    m = i.shape[0]
+    keys = np.empty(2 * m, dtype=np.int64)
+    np.left_shift(i, 32, out=keys[:m])
+    keys[:m] |= j
+    np.left_shift(j, 32, out=keys[m:])
+    keys[m:] |= i
+    keys.sort()  # numpy's sort releases the GIL: slabs sort in parallel
+    return keys
 
 
 _POOL: ThreadPoolExecutor | None = None
@@ -145,10 +162,12 @@ def _slab_pairs(
     members: np.ndarray | None,
     near_below: np.ndarray,
     near_above: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+    sort: bool,
+) -> tuple[np.ndarray, np.ndarray] | np.ndarray:
     """``(i, j)`` exact pairs within one slab (``members``; None: every point), plus those
     between its points ``near_below`` its upper face and the next slab's points ``near_above``
-    it (indices into ``coords``)."""
+    it (indices into ``coords``); with ``sort``, the sorted keys of both directions instead
+    (:func:`_sorted_pair_keys`)."""
     from scipy.spatial import cKDTree
 
     if members is None:
@@ -168,7 +187,7 @@ def _slab_pairs(
     keep = _within(coords, i, j, coords.dtype.type(radius * radius))
     if not keep.all():
         i, j = i[keep], j[keep]
-    return i, j
+    return _sorted_pair_keys(i, j) if sort else (i, j)
 
 
 def _slabs(x: np.ndarray, parts: int, search: float) -> np.ndarray | None:
@@ -178,13 +197,16 @@ def _slabs(x: np.ndarray, parts: int, search: float) -> np.ndarray | None:
     return None if np.any(np.diff(faces) <= search) else faces
 
 
-def _scipy_edges(pos: torch.Tensor, radius: float) -> torch.Tensor:
+def _scipy_edges(pos: torch.Tensor, radius: float, sort: bool) -> torch.Tensor:
     """``[2, E]`` (source, target) of both directions of every exact pair, via
-    ``cKDTree.query_pairs`` (CPU), in a deterministic order of the search.
+    ``cKDTree.query_pairs`` (CPU): sorted by ``(target, source)`` with ``sort``, otherwise in a
+    deterministic order of the search.
 
     Above ``SLAB_POINTS`` points per torch thread, the points are cut across their longest
-    axis into one slab per thread, each searched in its own thread (scipy's searches release
-    the GIL) together with the pairs across its upper face."""
+    axis into one slab per thread, each searched (and, with ``sort``, its keys sorted) in its
+    own thread (scipy's searches and numpy's sorts release the GIL) together with the pairs
+    across its upper face; the sorted runs of the slabs are then merged by one stable sort,
+    which numpy's timsort does in linear time."""
     pos = pos.cpu()
     coords = pos.numpy()
     coords64 = pos.double().numpy()
@@ -197,7 +219,7 @@ def _scipy_edges(pos: torch.Tensor, radius: float) -> torch.Tensor:
         faces = _slabs(x, parts, search)
     if faces is None:
         nobody = np.empty(0, dtype=np.int64)
-        found = [_slab_pairs(coords64, coords, radius, search, None, nobody, nobody)]
+        found = [_slab_pairs(coords64, coords, radius, search, None, nobody, nobody, sort)]
     else:
         slab = np.searchsorted(faces, x, side="right")  # slab s holds faces[s-1] <= x < faces[s]
         order = np.argsort(slab, kind="stable")
@@ -209,8 +231,11 @@ def _scipy_edges(pos: torch.Tensor, radius: float) -> torch.Tensor:
             if s + 1 < parts:
                 below = members[s][x[members[s]] >= faces[s] - search]
                 above = members[s + 1][x[members[s + 1]] < faces[s] + search]
-            jobs.append((coords64, coords, radius, search, members[s], below, above))
+            jobs.append((coords64, coords, radius, search, members[s], below, above, sort))
         found = list(_thread_pool(parts).map(lambda job: _slab_pairs(*job), jobs))
+    if sort:
+        keys = found[0] if len(found) == 1 else np.sort(np.concatenate(found), kind="stable")
+        return _split_keys(keys)
     k = sum(i.shape[0] for i, _ in found)
     out = np.empty((2, 2 * k), dtype=np.int64)
     at = 0
@@ -279,7 +304,7 @@ def _radius_graph(
             "scipy" if pos.device.type == "cpu" or not _has_torch_cluster() else "torch_cluster"
         )
     if backend == "scipy":
-        edge_index = _scipy_edges(pos, radius)
+        edge_index = _scipy_edges(pos, radius, sort)
     else:
         # On the CPU torch_cluster finds every neighbour anyway and the cap only trims the output,
         # so one uncapped search is cheapest; on CUDA the cap sizes the result buffer.
@@ -288,9 +313,7 @@ def _radius_graph(
         else:
             first_cap = FIRST_CAP_CUDA if max_num_neighbors is None else max_num_neighbors
         target, source = _torch_cluster_pairs(pos, radius, first_cap)
-        edge_index = torch.stack([source, target])
-    if sort:
-        edge_index = _sorted_by_target(edge_index[1], edge_index[0])
+        edge_index = _sorted_by_target(target, source) if sort else torch.stack([source, target])
     edge_index = edge_index.to(pos.device)
     if max_num_neighbors is not None and edge_index.shape[1] > 0:
         degree = torch.bincount(edge_index[1], minlength=n)
