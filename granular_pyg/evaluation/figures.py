@@ -54,7 +54,7 @@ def comparison_figure(ev: PairEvaluation, title: str = ""):
     ax.plot(t, s["entropy_truth"], color="k", **TRUTH)
     ax.plot(t, s["entropy_pred"], color="tab:red", **PRED)
     ax.axhline(np.log(2), color="0.6", lw=0.8)
-    _labels(ax, "time (s)", "mixing entropy", f"Mixing (split at frame {ev.mixing_frame})")
+    _labels(ax, "time (s)", "mixing entropy", f"Mixing (split at t = {t[ev.mixing_frame]:.3g} s)")
 
     ax = axes[1, 1]
     key, label = ev.observable
