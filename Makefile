@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 TORCH_SPEC ?= torch==2.13.*
 LIGGGHTS_INSTALL := apt-get install -y --no-install-recommends liggghts
 
-.PHONY: setup liggghts demo test test-fast lint format bench clean
+.PHONY: setup liggghts demo test test-fast lint format bench paper clean
 
 setup: $(STAMP) liggghts
 
@@ -52,6 +52,25 @@ format: setup
 
 bench: setup
 	$(PY) -m granular_pyg.bench suite=geometry
+
+# The paper's experiment (issue 9) on this machine: LIGGGHTS datasets, V1/V2/V3 x 3 seeds on the
+# hopper and V3 on the drum (one torch thread each, two at a time), evaluation, the variant table.
+PAPER := outputs/paper
+paper: setup
+	$(PY) -m granular_pyg.generate +dataset=paper_hopper jobs=2
+	$(PY) -m granular_pyg.generate +dataset=paper_drum jobs=2
+	@mkdir -p $(PAPER)
+	$(PY) -m granular_pyg.train +experiment=paper_drum model=v3 threads=1 \
+		hydra.run.dir=$(PAPER)/train/drum_v3 > $(PAPER)/train_drum_v3.log 2>&1 & \
+	for seed in 0 1 2; do for v in v3 v1 v2; do \
+		$(PY) -m granular_pyg.train +experiment=paper_hopper model=$$v seed=$$seed threads=1 \
+			hydra.run.dir=$(PAPER)/train/$${v}_s$$seed > $(PAPER)/train_$${v}_s$$seed.log 2>&1 & \
+		while [ $$(jobs -r | wc -l) -ge 2 ]; do sleep 5; done; done; done; wait
+	for run in $(PAPER)/train/*; do \
+		$(PY) -m granular_pyg.evaluate ckpt=$$run/checkpoints/last.ckpt 'splits=[train,test]' \
+			max_trajectories=5 out=$(PAPER)/evaluate/$$(basename $$run); done
+	$(PY) -m granular_pyg.compare "runs=[$$(ls -d $(PAPER)/evaluate/v?_s? | paste -sd,)]" \
+		out=$(PAPER)/compare
 
 clean:
 	rm -rf $(VENV) outputs multirun .pytest_cache .ruff_cache

@@ -1,5 +1,6 @@
 """``python -m granular_pyg.compare 'runs=[...]'``: the paper's variant table (EMD mu and sigma
-per variant, train and test, paired Wilcoxon p-values against V3) as Markdown and CSV."""
+per variant, train and test, paired Wilcoxon p-values against V3) as Markdown and CSV, and the
+paper's Figure 2 (the truth against each variant) for every test trajectory."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import hydra
 from omegaconf import DictConfig
 
 from granular_pyg.evaluation import variant_table
+from granular_pyg.evaluation.compare import write_variant_figures
 from granular_pyg.io import atomic_write
 
 __all__ = ["compare"]
@@ -27,6 +29,9 @@ def compare(cfg: DictConfig) -> Path:
         writer.writerows(rows)
     print(markdown)
     print(f"table: {out / 'table.md'}")
+    if cfg.get("figures", True):
+        for path in write_variant_figures(list(cfg.runs), out, cfg.get("figure_split", "test")):
+            print(f"figure: {path}")
     return out / "table.md"
 
 

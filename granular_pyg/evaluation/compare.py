@@ -13,7 +13,7 @@ from scipy.stats import wilcoxon
 
 from granular_pyg.errors import InputError
 
-__all__ = ["load_emd_values", "variant_table"]
+__all__ = ["load_emd_values", "variant_table", "write_variant_figures"]
 
 #: Normal variant of a model config -> the paper's name.
 VARIANTS = {"none": "V1", "single": "V2", "both": "V3"}
@@ -85,6 +85,42 @@ def variant_table(runs: list[str | Path], reference: str = "V3") -> tuple[list[d
             row[f"{split}_p_ref_less"], row[f"{split}_p_row_less"] = p_ref, p_row
         rows.append(row)
     return rows, _markdown(rows, splits, reference)
+
+
+def write_variant_figures(runs: list[str | Path], out_dir: str | Path, split: str = "test"):
+    """The paper's Figure 2 for each ``split`` trajectory that every variant has: the ground
+    truth against the rollout of each variant's first run (in the order given, so seed 0 when
+    the runs are listed by seed). Writes ``figures/variants_<split>_<trajectory>.png``.
+
+    Returns:
+        The written paths.
+    """
+    from granular_pyg.evaluation.figures import variants_figure
+    from granular_pyg.evaluation.pair import evaluate_pair
+    from granular_pyg.io import atomic_path, read_trajectory
+
+    first: dict[str, dict[str, dict]] = {}
+    for run in runs:
+        summary = json.loads((Path(run) / "evaluation.json").read_text())
+        if summary["variant"] in first:
+            continue
+        first[summary["variant"]] = {
+            t["name"]: t for t in summary["trajectories"] if t["split"] == split
+        }
+    common = sorted(set.intersection(*(set(v) for v in first.values()))) if first else []
+    written = []
+    for name in common:
+        entries = {variant: first[variant][name] for variant in sorted(first)}
+        truth = read_trajectory(next(iter(entries.values()))["truth"])
+        evaluations = {
+            v: evaluate_pair(truth, read_trajectory(e["prediction"])) for v, e in entries.items()
+        }
+        fig = variants_figure(evaluations, f"{split} / {name}: LIGGGHTS (solid) vs V1/V2/V3")
+        path = Path(out_dir) / "figures" / f"variants_{split}_{Path(name).stem}.png"
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=100, format="png")
+        written.append(path)
+    return written
 
 
 def _mean_over_seeds(runs: list[dict]) -> dict:

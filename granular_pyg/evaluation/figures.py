@@ -7,7 +7,7 @@ from matplotlib.figure import Figure
 
 from granular_pyg.evaluation.pair import PairEvaluation
 
-__all__ = ["comparison_figure"]
+__all__ = ["comparison_figure", "variants_figure"]
 
 TRUTH = {"ls": "-", "lw": 1.6}
 PRED = {"ls": "--", "lw": 1.6}
@@ -67,6 +67,54 @@ def comparison_figure(ev: PairEvaluation, title: str = ""):
     if len(steps):
         ax.loglog(steps, [ev.emd_steps[k] for k in steps], "o-", color="tab:red")
     _labels(ax, "learned step", "EMD W2^2 (m^2)", "EMD at steps 2^k")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+#: Colours of the variants in :func:`variants_figure`.
+VARIANT_COLOURS = {"V1": "tab:blue", "V2": "tab:orange", "V3": "tab:red"}
+
+
+def variants_figure(evaluations: dict[str, PairEvaluation], title: str = ""):
+    """The paper's Figure 2: one ground truth (solid black) against each variant's rollout
+    (dashed): particle-averaged height, flow profile over z, mixing entropy and the scene's
+    observable (hopper: discharged fraction; drum: dynamic angle of repose).
+
+    Args:
+        evaluations: ``{variant name: evaluation}`` of rollouts of the same trajectory.
+        title: figure title.
+
+    Returns:
+        A matplotlib ``Figure`` with four panels.
+    """
+    if not evaluations:
+        raise ValueError("evaluations: give at least one variant's evaluation")
+    first = next(iter(evaluations.values()))
+    fig = Figure(figsize=(16, 4))
+    axes = fig.subplots(1, 4)
+    key, label = first.observable
+    panels = [
+        ("times", "mean_pos_{}", "time (s)", "particle-averaged z (m)", "Averaged position"),
+        ("flow_z", "flow_z_{}", "mean v_z (m/s)", "z (m)", "Flow profile over z"),
+        ("times", "entropy_{}", "time (s)", "mixing entropy", "Mixing entropy"),
+        ("times", f"{key}_{{}}", "time (s)", label, label.split(" (")[0].capitalize()),
+    ]
+    curves = [("truth", first, {"color": "k", "label": "LIGGGHTS", **TRUTH})] + [
+        ("pred", ev, {"color": VARIANT_COLOURS.get(name), "label": name, **PRED})
+        for name, ev in evaluations.items()
+    ]
+    for ax, (x_key, y_key, xlabel, ylabel, name) in zip(axes, panels, strict=True):
+        for who, ev, style in curves:
+            y = ev.series[y_key.format(who)]
+            y = y[:, 2] if y.ndim == 2 else y
+            if x_key == "flow_z":
+                ax.plot(y, ev.series["flow_z_centres"], **style)
+            else:
+                ax.plot(ev.series["times"], y, **style)
+        _labels(ax, xlabel, ylabel, name)
+    axes[0].legend(fontsize=8)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

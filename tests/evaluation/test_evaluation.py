@@ -13,9 +13,11 @@ from scipy.stats import wilcoxon
 
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair, variant_table, write_evaluation
+from granular_pyg.evaluation.compare import write_variant_figures
+from granular_pyg.evaluation.figures import variants_figure
 from granular_pyg.evaluation.pair import MIXING_TIME_S
 from granular_pyg.evaluation.report import EvaluatedRollout
-from granular_pyg.io import read_trajectory
+from granular_pyg.io import read_trajectory, write_trajectory
 from granular_pyg.samples import sample_files
 
 
@@ -144,3 +146,30 @@ def test_a_long_step_rollout_splits_the_mixing_classes_at_the_papers_time(hopper
     entropy = ev.series["entropy_truth"]
     assert ev.scalars["mixing_entropy_error"] == 0  # the truth against itself
     assert np.nanmax(entropy) > entropy[2] > 0  # mixing as the bed drains
+
+
+def test_variant_figures_plot_the_truth_and_each_variants_first_run(tmp_path, hopper):
+    truth_file = sample_files("hopper", "test")[0]
+    exact = _as_rollout(hopper, k=2, frames=30)
+    shifted = dataclasses.replace(exact, positions=exact.positions + np.float32(0.001))
+    runs = []
+    for variant, pred in [("V3", exact), ("V1", shifted), ("V3", shifted)]:
+        run = tmp_path / f"{variant}_{len(runs)}"
+        write_trajectory(pred, run / "rollouts" / "test.h5")
+        ev = evaluate_pair(hopper, pred)
+        rollout = EvaluatedRollout(
+            "test", truth_file.name, str(truth_file), str(run / "rollouts" / "test.h5"), ev
+        )
+        write_evaluation(run, [rollout], {"variant": variant, "ckpt": "x.ckpt"})
+        runs.append(run)
+    [path] = write_variant_figures(runs, tmp_path / "compare")
+    assert path.name == f"variants_test_{truth_file.stem}.png"
+    assert path.read_bytes()[:4] == b"\x89PNG"
+    # the figure itself: four panels, each with the truth and one curve per variant
+    evaluations = {"V1": evaluate_pair(hopper, shifted), "V3": evaluate_pair(hopper, exact)}
+    fig = variants_figure(evaluations)
+    assert len(fig.axes) == 4
+    for ax in fig.axes:
+        assert [line.get_label() for line in ax.lines] == ["LIGGGHTS", "V1", "V3"]
+    truth_z, v3_z = fig.axes[0].lines[0].get_ydata(), fig.axes[0].lines[2].get_ydata()
+    assert np.array_equal(truth_z, v3_z, equal_nan=True)  # V3 is the truth itself
