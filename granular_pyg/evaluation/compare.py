@@ -115,7 +115,8 @@ def write_variant_figures(runs: list[str | Path], out_dir: str | Path, split: st
         evaluations = {
             v: evaluate_pair(truth, read_trajectory(e["prediction"])) for v, e in entries.items()
         }
-        fig = variants_figure(evaluations, f"{split} / {name}: LIGGGHTS (solid) vs V1/V2/V3")
+        shown = "/".join(evaluations)
+        fig = variants_figure(evaluations, f"{split} / {name}: LIGGGHTS (solid) vs {shown}")
         path = Path(out_dir) / "figures" / f"variants_{split}_{Path(name).stem}.png"
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=100, format="png")
