@@ -9,6 +9,9 @@ keep its lid closed, a resting bed) and checks every learned step for:
   truth's largest, failing above ``ke_limit`` times it;
 - leaked particles: centres beyond a container wall by more than the smallest radius
   (:func:`granular_pyg.metrics.leaked_mask`), judged before the outflow removes anyone;
+- escaped particles: particles that left the Scene's simulation box other than through the
+  outflow floor (through a wall); as LIGGGHTS deletes atoms that leave its box, they are
+  removed (so a particle flung away cannot outgrow float32) and counted as leaked;
 - particle-count drift: particles that vanished other than through the Scene's outflow;
 
 and reports the first step where anything went wrong. With ``compare_float64`` a float64
@@ -61,6 +64,12 @@ def _truth_max_kinetic_energy(truth: Trajectory) -> float:
     vel = truth.velocities.astype(np.float64)
     energy = 0.5 * np.nansum(mass[None] * (vel * vel).sum(-1), axis=1)
     return float(energy.max())
+
+
+def _outside(pos: torch.Tensor, box: tuple[torch.Tensor, torch.Tensor]) -> torch.Tensor:
+    """``[N]`` bool: finite rows of ``pos [N, 3]`` (m) outside the box ``(lo, hi)`` (m)."""
+    lo, hi = (b.to(pos.dtype) for b in box)
+    return ((pos < lo) | (pos > hi)).any(1)
 
 
 def _without_removals(truth: Trajectory) -> Trajectory:
@@ -123,6 +132,7 @@ def stress_case(
     mass, tol = _masses(truth), float(truth.radii.min())
     ke_truth = _truth_max_kinetic_energy(truth)
     outflow = scene.outflow_z
+    box = (torch.tensor(scene.domain_lo), torch.tensor(scene.domain_hi))
     rows, leaked_ever = [], np.zeros(truth.num_particles, dtype=bool)
     summary = {
         "steps": steps,
@@ -135,6 +145,7 @@ def stress_case(
         "failure": "",
         "max_kinetic_energy_ratio": 0.0,
         "left_through_outflow": 0,
+        "escaped_box": 0,
         "drift": 0,
         "max_divergence_m": 0.0,
     }
@@ -157,20 +168,26 @@ def stress_case(
             seq, new = runs["float32"], nxt["float32"]
             before = torch.isfinite(seq[:, -1]).all(1)
             out = new[:, 2] < outflow if outflow is not None else torch.zeros_like(before)
+            # As in LIGGGHTS, a particle that leaves the simulation box is gone; other than
+            # through the outflow floor it escaped through a wall.
+            escaped = _outside(new, box) & ~out & before
             for name in nxt:
-                if outflow is not None:
-                    nxt[name][nxt[name][:, 2] < outflow] = float("nan")
+                nxt[name][_outside(nxt[name], box)] = float("nan")
             after = torch.isfinite(nxt["float32"]).all(1)
             # Reaching the outflow through a closed outlet is a leak too.
             now = leaked_mask(nxt["float32"].numpy()[None], scene, np.array([time + dt]), tol)[0]
             if any(w.present(time + dt) for w in scene.walls if w.name in closers):
                 now |= (before & out).numpy()
+            if escaped.any():
+                fail(s, f"{int(escaped.sum())} particle(s) escaped the scene's box through a wall")
+                now |= escaped.numpy()
             if now.any():
                 fail(s, f"{int(now.sum())} particle(s) leaked through a wall")
             leaked_ever |= now
             left = int((before & out).sum())
-            drift = int(before.sum()) - int(after.sum()) - left
+            drift = int(before.sum()) - int(after.sum()) - left - int(escaped.sum())
             summary["left_through_outflow"] += left
+            summary["escaped_box"] += int(escaped.sum())
             summary["drift"] += drift
             if drift:
                 fail(s, f"{drift} particle(s) vanished other than through the outflow")
@@ -245,8 +262,8 @@ def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
         f"Command: `{command}`",
         "",
         "| case | steps done | k | particles | first failure | max KE / truth | leaked "
-        "| left (outflow) | drift | max float32-float64 divergence (m) |",
-        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|",
+        "| left (outflow) | escaped box | drift | max float32-float64 divergence (m) |",
+        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, (s, _) in results.items():
         first = "none" if s["first_failure_step"] < 0 else f"step {s['first_failure_step']}: "
@@ -254,7 +271,8 @@ def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
         lines.append(
             f"| {name} | {s['steps_done']:,} / {s['steps']:,} | {s['k']} | {s['particles']} "
             f"| {first} | {s['max_kinetic_energy_ratio']:.3g} | {s['leaked_particles']} "
-            f"| {s['left_through_outflow']} | {s['drift']} | {s['max_divergence_m']:.3g} |"
+            f"| {s['left_through_outflow']} | {s['escaped_box']} | {s['drift']} "
+            f"| {s['max_divergence_m']:.3g} |"
         )
     lines += ["", "![stress](stress.png)", ""]
     return "\n".join(lines)

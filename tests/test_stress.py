@@ -132,3 +132,26 @@ def test_stress_command_quick_mode_writes_its_report(tmp_path):
     assert saved["hopper_discharging"]["steps"] == 5
     assert (tmp_path / "out" / "stress.png").stat().st_size > 0
     assert "| hopper_resting |" in (tmp_path / "out" / "stress.md").read_text()
+
+
+def test_a_particle_flung_out_of_the_drum_escapes_the_box_and_the_run_goes_on():
+    # Particle 7 gets 1e6 m/s^2 along +x on the second step: it leaves the drum's box within
+    # one step; it is removed as LIGGGHTS would (never reaching coordinates float32 cannot
+    # resolve) and reported, and the other particles roll on.
+    drum = read_trajectory(sample_files("drum", "test")[0])
+    sim = _model(radius=0.01, k=2)
+    real, calls = sim.predict_acceleration, {"n": 0}
+
+    def fling_on_second_call(seq, *args, **kwargs):
+        acc = real(seq, *args, **kwargs)
+        calls["n"] += 1
+        if calls["n"] == 2:
+            acc[7, 0] = 1e6
+        return acc
+
+    sim.predict_acceleration = fling_on_second_call
+    summary, rows = stress_case(sim, drum, 4, compare_float64=False, progress=False)
+    assert summary["steps_done"] == 4 and summary["escaped_box"] == 1 and summary["drift"] == 0
+    assert summary["first_failure_step"] == 1 and "escaped" in summary["failure"]
+    assert summary["leaked_particles"] >= 1
+    assert rows[-1]["present"] == drum.num_particles - 1
