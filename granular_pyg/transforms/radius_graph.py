@@ -39,7 +39,7 @@ BACKENDS = ("auto", "scipy", "torch_cluster")
 FIRST_CAP_CUDA = 64
 
 # Points per torch thread above which the scipy search is split into slabs, one per thread.
-SLAB_POINTS = 4096
+SLAB_POINTS = 1000
 
 # Candidate searches use radius * (1 + _SLACK_ULPS * eps(dtype)): a superset of the exact test.
 _SLACK_ULPS = 64
