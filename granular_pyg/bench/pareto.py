@@ -35,6 +35,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair
 from granular_pyg.inference import load_simulator, rollout_trajectory
 from granular_pyg.io import Trajectory, read_trajectory
+from granular_pyg.pretrained import PREFIX
 from granular_pyg.samples import sample_files
 
 #: Error measures with a front of their own: (row key, axis label).
@@ -85,6 +86,8 @@ def _label(ckpt: str, config: dict, k: int) -> str:
     model = config["model"]
     run_dir = Path(ckpt).parent.parent  # <run>/checkpoints/<name>.ckpt
     name = "/".join(run_dir.parts[1:]) if run_dir.parts[:1] == ("outputs",) else run_dir.name
+    if str(ckpt).startswith(PREFIX):
+        name = "pretrained/" + str(ckpt)[len(PREFIX) :]
     return (
         f"{name}: {model['processor']['layer']}, latent "
         f"{model['latent']}, R {1e3 * model['radius']:g} mm, k {k}"

@@ -63,3 +63,12 @@ def test_emd_at_horizons_compares_frames_at_the_same_simulated_time():
     assert set(got) == {0.05, 0.1, 0.2}  # 0.5 s is past the rollout
     for value in got.values():
         assert value == pytest.approx(1e-6, rel=1e-4)  # W2^2 of a 1 mm shift, m^2
+
+
+def test_a_setting_is_named_by_its_run_folder_or_pretrained_name():
+    from granular_pyg.bench.pareto import _label
+
+    config = {"model": {"processor": {"layer": "attention"}, "latent": 32, "radius": 0.005}}
+    run = _label("outputs/pareto/latent32/checkpoints/last.ckpt", config, 8)
+    assert run == "pareto/latent32: attention, latent 32, R 5 mm, k 8"
+    assert _label("pretrained:hopper", config, 4).startswith("pretrained/hopper: attention")
