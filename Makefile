@@ -60,7 +60,7 @@ paper: setup
 	$(PY) -m granular_pyg.generate +dataset=paper_hopper jobs=2
 	$(PY) -m granular_pyg.generate +dataset=paper_drum jobs=2
 	@mkdir -p $(PAPER)
-	$(PY) -m granular_pyg.train +experiment=paper_drum model=v3 threads=1 \
+	$(PY) -m granular_pyg.train +experiment=paper_drum model=v3 threads=1 trainer.max_epochs=48 \
 		hydra.run.dir=$(PAPER)/train/drum_v3 > $(PAPER)/train_drum_v3.log 2>&1 & \
 	for seed in 0 1 2; do for v in v3 v1 v2; do \
 		$(PY) -m granular_pyg.train +experiment=paper_hopper model=$$v seed=$$seed threads=1 \
