@@ -92,8 +92,14 @@ def write_variant_figures(runs: list[str | Path], out_dir: str | Path, split: st
     truth against the rollout of each variant's first run (in the order given, so seed 0 when
     the runs are listed by seed). Writes ``figures/variants_<split>_<trajectory>.png``.
 
+    Args:
+        runs: evaluation folders (``python -m granular_pyg.evaluate``), whose
+            ``evaluation.json`` name the truth and rollout file of every trajectory.
+        out_dir: folder that gets ``figures/``.
+        split: the split whose trajectories are drawn.
+
     Returns:
-        The written paths.
+        The written PNG paths, one per trajectory every variant has (none if no run is given).
     """
     from granular_pyg.evaluation.figures import variants_figure
     from granular_pyg.evaluation.pair import evaluate_pair

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from granular_pyg.errors import InputError
 from granular_pyg.evaluation.pair import PairEvaluation
 
 __all__ = ["comparison_figure", "variants_figure"]
@@ -87,10 +88,13 @@ def variants_figure(evaluations: dict[str, PairEvaluation], title: str = ""):
         title: figure title.
 
     Returns:
-        A matplotlib ``Figure`` with four panels.
+        A matplotlib ``Figure`` with four panels (no pyplot state).
+
+    Raises:
+        InputError: ``evaluations`` is empty.
     """
     if not evaluations:
-        raise ValueError("evaluations: give at least one variant's evaluation")
+        raise InputError("evaluations: give at least one variant's evaluation")
     first = next(iter(evaluations.values()))
     fig = Figure(figsize=(16, 4))
     axes = fig.subplots(1, 4)

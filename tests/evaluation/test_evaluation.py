@@ -173,3 +173,5 @@ def test_variant_figures_plot_the_truth_and_each_variants_first_run(tmp_path, ho
         assert [line.get_label() for line in ax.lines] == ["LIGGGHTS", "V1", "V3"]
     truth_z, v3_z = fig.axes[0].lines[0].get_ydata(), fig.axes[0].lines[2].get_ydata()
     assert np.array_equal(truth_z, v3_z, equal_nan=True)  # V3 is the truth itself
+    with pytest.raises(InputError, match="at least one variant"):
+        variants_figure({})
