@@ -41,11 +41,21 @@ def evaluate(cfg: DictConfig) -> Path:
         files = load_split(root, sample, split)[: cfg.max_trajectories]
         for file in files:
             truth = read_trajectory(file)
-            pred = rollout_trajectory(sim, truth, cfg.steps, progress=cfg.progress, skin=cfg.skin)
+            pred = rollout_trajectory(
+                sim,
+                truth,
+                cfg.steps,
+                progress=cfg.progress,
+                skin=cfg.skin,
+                wall_guard=cfg.wall_guard,
+            )
             pred_file = out / "rollouts" / f"{split}_{file.stem}.h5"
             pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(file)}
             write_trajectory(pred, pred_file)
             evaluation = evaluate_pair(truth, pred)
+            if cfg.wall_guard:  # how often the guard stepped in: the network's own leaks
+                corrections = float(pred.metadata["wall_guard_corrections"])
+                evaluation.scalars["wall_guard_corrections"] = corrections
             if len(rollouts) < cfg.paraview:
                 pvd = export_paraview(
                     out / "paraview" / f"{split}_{file.stem}",
@@ -81,6 +91,8 @@ def _command(cfg: DictConfig) -> str:
     for key in ("root", "sample", "max_trajectories", "steps", "skin"):
         if cfg[key] is not None:
             parts.append(f"{key}={cfg[key]}")
+    if cfg.wall_guard:
+        parts.append("wall_guard=true")
     return "python -m granular_pyg.evaluate " + " ".join(parts)
 
 

@@ -22,7 +22,7 @@ from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.io import Trajectory
 from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.scenes import WallSet
-from granular_pyg.simulator import LearnedSimulator
+from granular_pyg.simulator import LearnedSimulator, WallGuard
 
 __all__ = ["load_simulator", "matching_frames", "rollout_trajectory", "time_step_multiple"]
 
@@ -87,6 +87,7 @@ def rollout_trajectory(
     progress: bool = True,
     dtype: torch.dtype = torch.float32,
     skin: float | None = None,
+    wall_guard: bool = False,
 ) -> Trajectory:
     """Roll ``sim`` out over ``truth``'s Scene from its ground-truth initial states.
 
@@ -99,6 +100,9 @@ def rollout_trajectory(
         dtype: position dtype of the rollout (float32, or float64 for precision studies).
         skin: Verlet skin (m) to reuse the particle graph between steps (the same edges, fewer
             tree searches; see ``transforms.NeighbourList``); None: a fresh graph every step.
+        wall_guard: end every move that would carry a centre through a wall at the wall, one
+            particle radius from it (:class:`~granular_pyg.simulator.WallGuard`); the metadata
+            counts the corrections (``wall_guard_corrections``, particle-steps).
 
     Returns:
         A Trajectory with ``H + 1 + steps`` frames every ``k`` saved frames from
@@ -130,15 +134,18 @@ def rollout_trajectory(
     dt = float(sim.dt)
     t0 = float(truth.times[initial[-1]])
     settings = {"start_frame": int(start_frame), "dtype": str(dtype).removeprefix("torch.")}
-    settings |= {"skin": skin, "time_step_multiple": k}
+    settings |= {"skin": skin, "time_step_multiple": k, "wall_guard": bool(wall_guard)}
+    guard = WallGuard(torch.from_numpy(truth.radii).double()) if wall_guard else None
     try:
         pred = sim.rollout(
-            seq, WallSet(truth.scene), t0, steps, truth.scene.outflow_z, progress, skin
+            seq, WallSet(truth.scene), t0, steps, truth.scene.outflow_z, progress, skin, guard
         )
     except NonFiniteError as exc:
         done = exc.positions_so_far
         exc.partial = _prediction(truth, initial, done, dt, settings | {"failed_step": exc.step})
         raise
+    if guard is not None:
+        settings["wall_guard_corrections"] = guard.corrected
     return _prediction(truth, initial, pred, dt, settings)
 
 

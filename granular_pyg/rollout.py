@@ -50,6 +50,7 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
             progress=cfg.progress,
             dtype=DTYPES[cfg.dtype],
             skin=cfg.skin,
+            wall_guard=cfg.wall_guard,
         )
     except NonFiniteError as exc:
         partial = out.with_suffix(".partial.h5")
@@ -61,6 +62,9 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     write_trajectory(pred, out)
     steps = pred.metadata["steps"]
     print(f"rollout: {steps} learned steps of {pred.metadata['dt'] * 1e3:g} ms from {source}")
+    if cfg.wall_guard:
+        fixes = pred.metadata["wall_guard_corrections"]
+        print(f"wall guard: {fixes} particle-steps stopped at a wall")
     print(f"prediction: {out}")
     if cfg.paraview:
         pvd = export_paraview(out.parent / "paraview", {"prediction": pred}, progress=cfg.progress)

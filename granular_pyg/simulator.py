@@ -27,6 +27,8 @@ Integration is semi-implicit Euler with the module's step ``dt`` (s):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 from torch import nn
 from torch_geometric.data import Batch, Data
@@ -36,7 +38,27 @@ from granular_pyg.nn import EncodeProcessDecode, Processor
 from granular_pyg.scenes import WallSet
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 
-__all__ = ["LearnedSimulator"]
+__all__ = ["LearnedSimulator", "WallGuard"]
+
+
+@dataclass
+class WallGuard:
+    """Keeps a rollout's particle centres inside the walls (:meth:`WallSet.contain`).
+
+    A learned step that would carry a centre through a wall is cut at the wall, the centre
+    left ``margin`` from it (an inelastic, frictionless contact). The model itself is unchanged:
+    ``corrected`` counts how often the guard had to step in, so a guarded rollout still reports
+    how far the network alone would leak.
+
+    Attributes:
+        margin: ``[N]`` float64 distance (m) a corrected centre keeps from the wall, one per
+            particle of the rollout (usually its radius).
+        corrected: particle-steps moved back so far.
+    """
+
+    margin: torch.Tensor
+    corrected: int = 0
+
 
 NUM_DIMS = 3
 NUM_TYPES = 2  # particle, wall
@@ -217,11 +239,13 @@ class LearnedSimulator(nn.Module):
         time: float,
         outflow_z: float | None = None,
         neighbours: NeighbourList | None = None,
+        guard: WallGuard | None = None,
     ) -> torch.Tensor:
         """Advance one learned step (``dt``).
 
-        Particles with any NaN in ``pos_seq`` have left: they are masked out and stay NaN. A
-        particle whose new centre lies below ``outflow_z`` (m) leaves (becomes NaN).
+        Particles with any NaN in ``pos_seq`` have left: they are masked out and stay NaN. With
+        a ``guard``, moves through a wall end at the wall. A particle whose new centre then lies
+        below ``outflow_z`` (m) leaves (becomes NaN).
 
         Args:
             pos_seq: ``[N, H + 1, 3]`` positions (m), NaN rows for particles that have left.
@@ -229,6 +253,7 @@ class LearnedSimulator(nn.Module):
             time: recorded time (s) of the last position.
             outflow_z: the scene's outflow height (m), or None.
             neighbours: a :class:`NeighbourList` kept over the steps of a rollout, or None.
+            guard: a :class:`WallGuard` over the ``N`` particles, or None.
 
         Returns:
             ``[N, 3]`` next positions in the dtype of ``pos_seq``.
@@ -268,7 +293,15 @@ class LearnedSimulator(nn.Module):
             )
         last_vel = self.velocities(seq[:, -2:])[:, 0]
         next_vel = last_vel + self.dt * acc
-        out[present] = (seq[:, -1].double() + self.dt * next_vel).to(pos_seq.dtype)
+        nxt = seq[:, -1].double() + self.dt * next_vel
+        if guard is not None:
+            end_time = time + float(self.dt)
+            margin = guard.margin[present]
+            nxt, corrected = walls.contain(
+                seq[:, -1], nxt, time, end_time, margin, self.radius_graph.radius
+            )
+            guard.corrected += corrected
+        out[present] = nxt.to(pos_seq.dtype)
         if outflow_z is not None:
             out[out[:, 2] < outflow_z] = float("nan")
         return out
@@ -283,6 +316,7 @@ class LearnedSimulator(nn.Module):
         outflow_z: float | None = None,
         progress: bool = False,
         skin: float | None = None,
+        guard: WallGuard | None = None,
     ) -> torch.Tensor:
         """Autoregressive rollout of ``steps`` learned steps from ``pos_seq``.
 
@@ -295,6 +329,7 @@ class LearnedSimulator(nn.Module):
             progress: show a progress bar.
             skin: reuse the radius graph between steps with this Verlet skin (m); the same
                 edges as fresh graphs, fewer tree searches. None: a fresh graph every step.
+            guard: keep centres inside the walls (:class:`WallGuard`); None: the model alone.
 
         Returns:
             ``[steps, N, 3]`` predicted positions, NaN for particles that have left.
@@ -307,7 +342,7 @@ class LearnedSimulator(nn.Module):
         neighbours = None if skin is None else NeighbourList(rg.radius, skin, rg.backend)
         for s in tqdm(range(steps), desc="rollout", unit="step", disable=not progress):
             try:
-                nxt = self.step(seq, walls, time + s * dt, outflow_z, neighbours)
+                nxt = self.step(seq, walls, time + s * dt, outflow_z, neighbours, guard)
             except NonFiniteError as exc:
                 exc.step = s
                 exc.args = (f"learned step {s}: {exc.args[0]}",)

@@ -19,6 +19,7 @@ from granular_pyg.inference import (
     time_step_multiple,
 )
 from granular_pyg.io import read_trajectory
+from granular_pyg.metrics import leaked_particles
 from granular_pyg.rollout import rollout
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
@@ -126,6 +127,29 @@ def test_particles_below_the_outflow_leave_the_rollout(sim, hopper):
     assert np.isfinite(pred.positions[5, 0]).all()
     assert np.isnan(pred.positions[6:, 0]).all()
     assert np.isfinite(pred.positions[6:, 1:][:, hopper.present[20, 1:]]).all()
+
+
+def test_the_wall_guard_keeps_particles_thrown_at_the_walls_inside(sim, hopper):
+    """Every particle is given 0.4 m/s away from the hopper's centre plane over its initial
+    states: an untrained model carries many through the V walls, the guard none."""
+    k, start = 2, 10
+    last = start + 5 * k  # the last initial state, left where it is
+    frames = np.arange(hopper.num_frames)[:, None]
+    pos = hopper.positions.copy()
+    outward = np.sign(pos[last, :, 0])  # -1 / +1: towards the nearer V wall
+    pos[..., 0] += 0.4 * outward * (frames - last) * hopper.frame_dt
+    thrown = dataclasses.replace(hopper, positions=pos)
+    free = rollout_trajectory(sim, thrown, steps=6, start_frame=start, progress=False)
+    held = rollout_trajectory(
+        sim, thrown, steps=6, start_frame=start, progress=False, wall_guard=True
+    )
+    scene, radii = hopper.scene, hopper.radii
+    leaked_free = leaked_particles(free.positions[6:], scene, free.times[6:], radii)
+    assert leaked_free > 50
+    assert leaked_particles(held.positions[6:], scene, held.times[6:], radii) == 0
+    assert held.metadata["wall_guard"] is True
+    assert held.metadata["wall_guard_corrections"] >= leaked_free
+    assert free.metadata["wall_guard"] is False
 
 
 def test_load_simulator_rejects_files_that_are_not_checkpoints(tmp_path):

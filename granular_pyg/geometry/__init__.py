@@ -5,11 +5,13 @@ from granular_pyg.geometry.closest_point import (
     closest_point_on_triangles,
     triangle_regions,
 )
+from granular_pyg.geometry.crossing import SegmentCrossings, segment_triangle_crossings
 from granular_pyg.geometry.normals import canonical_normals, orientation_key, triangle_normals
 from granular_pyg.geometry.rigid import pose_about_axis, rotation_about_axis
 from granular_pyg.geometry.wall_index import WallIndex, WallPairs, dense_wall_pairs
 
 __all__ = [
+    "SegmentCrossings",
     "WallIndex",
     "WallPairs",
     "canonical_normals",
@@ -19,6 +21,7 @@ __all__ = [
     "orientation_key",
     "pose_about_axis",
     "rotation_about_axis",
+    "segment_triangle_crossings",
     "triangle_normals",
     "triangle_regions",
 ]

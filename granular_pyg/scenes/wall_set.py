@@ -7,10 +7,15 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from granular_pyg.geometry import WallIndex, triangle_normals
+from granular_pyg.errors import InputError
+from granular_pyg.geometry import WallIndex, segment_triangle_crossings, triangle_normals
 from granular_pyg.scenes.scene import Scene, Wall
 
 __all__ = ["WallContacts", "WallSet"]
+
+#: Correction passes of :meth:`WallSet.contain` before a particle is held where it was (a
+#: corner can need one pass per wall it meets).
+CONTAIN_PASSES = 4
 
 
 class WallContacts(NamedTuple):
@@ -87,3 +92,90 @@ class WallSet:
             vec = points.new_zeros((0, 3))
             return WallContacts(empty, empty.clone(), vec, vec.clone(), vec.clone())
         return WallContacts(*(torch.cat(cols) for cols in zip(*parts, strict=True)))
+
+    def contain(
+        self,
+        start: torch.Tensor,
+        end: torch.Tensor,
+        start_time: float,
+        end_time: float,
+        margin: torch.Tensor | float,
+        radius: float,
+    ) -> tuple[torch.Tensor, int]:
+        """The wall guard: moves that would carry a particle centre through a wall end before it.
+
+        A move ``start -> end`` that crosses a triangle of a wall present at ``end_time`` (the
+        start posed at ``start_time``, the end at ``end_time``, so a rotating drum is followed
+        exactly) is cut at that wall: the end keeps its motion along the wall and is put back on
+        the start's side, ``min(margin, start's distance from the wall)`` from its plane (an
+        inelastic, frictionless contact). The first crossing along the move is corrected first;
+        up to :data:`CONTAIN_PASSES` passes resolve corners, after which a particle that still
+        crosses stays at ``start``.
+
+        Args:
+            start: ``[P, 3]`` positions at ``start_time`` (m, world frame).
+            end: ``[P, 3]`` proposed positions at ``end_time`` (m).
+            start_time: recorded time of ``start`` (s).
+            end_time: recorded time of ``end`` (s).
+            margin: ``[P]`` or a float, > 0 (m): how close to a wall a corrected centre ends,
+                usually the particle radius.
+            radius: the smallest wall-index query radius (m); longer moves query with it
+                times a power of two. The simulator passes its cut-off, whose grids the wall
+                nodes have built already.
+
+        Returns:
+            ``(end [P, 3], corrected)``: the contained positions in the dtype of ``end`` and the
+            number of particles that were moved back.
+        """
+        dtype = end.dtype
+        p0, p1 = start.double(), end.double()
+        margin = torch.as_tensor(margin, dtype=torch.float64).expand(p1.shape[0])
+        if not bool((margin > 0).all()):
+            raise InputError("margin: the wall guard needs a positive distance (m) per particle")
+        corrected = torch.zeros(p1.shape[0], dtype=torch.bool)
+        args = (start_time, end_time, margin, float(radius))
+        for _ in range(CONTAIN_PASSES):
+            fixed = self._first_crossing_fix(p0, p1, *args)
+            if fixed is None:
+                return p1.to(dtype), int(corrected.sum())
+            rows, positions = fixed
+            p1[rows] = positions
+            corrected[rows] = True
+        fixed = self._first_crossing_fix(p0, p1, *args)
+        if fixed is not None:
+            p1[fixed[0]] = p0[fixed[0]]
+        return p1.to(dtype), int(corrected.sum())
+
+    def _first_crossing_fix(self, p0, p1, t0, t1, margin, base):
+        """``(rows, corrected ends)`` of the particles whose move crosses a wall, or None."""
+        found = []  # (particle, fraction along the move, corrected end in the world frame)
+        for wall, index in zip(self.walls, self.indices, strict=True):
+            if not wall.present(t1):
+                continue
+            rot0, shift0 = (torch.from_numpy(x) for x in wall.motion.pose(t0))
+            rot1, shift1 = (torch.from_numpy(x) for x in wall.motion.pose(t1))
+            q0, q1 = (p0 - shift0) @ rot0, (p1 - shift1) @ rot1  # mesh frame
+            reach = torch.linalg.vector_norm(q1 - q0, dim=1)
+            # Triangles a move crosses lie within its length of its end: query in powers of two.
+            level = torch.ceil(torch.log2(torch.clamp(reach / base, min=1.0))).long()
+            for lv in torch.unique(level).tolist():
+                rows = (level == lv).nonzero().squeeze(1)
+                cand, tri = index.candidates(q1[rows], base * 2.0**lv)
+                cand = rows[cand]
+                hit = segment_triangle_crossings(q0[cand], q1[cand], index.triangles.double()[tri])
+                sel = hit.crosses
+                if bool(sel.any()):
+                    cand = cand[sel]
+                    gap = torch.minimum(hit.start_distance[sel], margin[cand])
+                    push = (gap + hit.end_depth[sel]).unsqueeze(1) * hit.normal[sel]
+                    found.append((cand, hit.fraction[sel], (q1[cand] + push) @ rot1.T + shift1))
+        if not found:
+            return None
+        cand, frac, moved = (torch.cat(col) for col in zip(*found, strict=True))
+        first = torch.full((p1.shape[0],), torch.inf, dtype=torch.float64)
+        first = first.scatter_reduce(0, cand, frac, "amin")
+        keep = (frac == first[cand]).nonzero().squeeze(1)
+        rows, pick = torch.unique(cand[keep], return_inverse=True)
+        one = torch.full((rows.numel(),), keep.numel(), dtype=torch.long)
+        one = one.scatter_reduce(0, pick, torch.arange(keep.numel()), "amin")  # ties: the first
+        return rows, moved[keep[one]]
