@@ -11,8 +11,15 @@ A learned simulator takes steps hundreds of DEM steps long, so in a discharging 
 particles (the falling ones) leave their skin every step while most barely move. Only those
 *movers* are searched again (on the CPU): their references are reset, their pairs are dropped
 and searched anew from their references against everyone's, and merged into the sorted list.
-A full search happens when most particles move (or off the CPU). Particles that leave are
-dropped from the list without a search.
+When too many particles move for that (more than ``FULL_SEARCH_FRACTION``), reuse cannot pay
+and the list steps aside: it returns plain radius graphs at ``radius`` (no skin, the cheapest
+search) and comes back with a skinned search once the particles move less than ``skin / 2``
+per step again (fewer than half that fraction). Particles that leave are dropped from the list
+without a search.
+
+Each step only tests the pairs whose fate is open: a pair less than ``radius - skin`` apart at
+the references is within ``radius`` for as long as the list is exact, so it is kept untested,
+and only the shell between ``radius - skin`` and ``radius + skin`` is measured.
 
 The edges are the same, in the same order, as :func:`~granular_pyg.transforms.radius_graph`'s
 (tested), because both apply the same exact test to a pair list sorted by (target, source).
@@ -48,8 +55,9 @@ class NeighbourList:
         backend: radius-graph backend of the full searches (see ``radius_graph``).
 
     Attributes:
-        builds: full searches so far.
+        builds: full searches with the skin so far.
         refreshes: partial searches (movers only) so far.
+        plain: plain radius graphs (no skin) returned while reuse could not pay.
         calls: graphs returned so far.
     """
 
@@ -58,10 +66,14 @@ class NeighbourList:
         if not (skin > 0 and np.isfinite(skin)):
             raise InputError(f"skin: expected a positive distance (m), got {skin}")
         self.skin, self.backend = float(skin), backend
-        self.builds = self.refreshes = self.calls = 0
+        self.builds = self.refreshes = self.plain = self.calls = 0
         self._ids: torch.Tensor | None = None  # [N] particle ids of the cached rows
         self._ref: torch.Tensor | None = None  # [N, 3] reference positions
         self._pairs: torch.Tensor | None = None  # [2, C] candidate (source, target), sorted
+        self._sure: np.ndarray | None = None  # [C] bool: within radius while the list is exact
+        self._shell: np.ndarray | None = None  # [S] indices of the other candidates
+        self._shell_pairs: np.ndarray | None = None  # [2, S] their (source, target)
+        self._stepped_aside = False  # plain graphs; _ref holds the last call's positions
 
     def __call__(self, pos: torch.Tensor, ids: torch.Tensor | None = None) -> torch.Tensor:
         """``edge_index [2, E]`` of ``pos [N, 3]`` (m), as ``radius_graph(pos, radius)``.
@@ -79,24 +91,63 @@ class NeighbourList:
             raise InputError(f"ids: expected shape [{n}], got {list(ids.shape)}")
         self.calls += 1
         pos = pos.detach()
-        if not self._follow(ids):
+        limit = 0.5 * self.skin - 1e-6 * (self.radius + self.skin)  # round-off cannot matter
+        known = self._follow(ids)
+        moved = None
+        if known:
+            moved = torch.linalg.vector_norm((pos - self._ref).double(), dim=1) > limit
+        if self._stepped_aside:
+            if not known or int(moved.sum()) > 0.5 * FULL_SEARCH_FRACTION * n:
+                return self._plain(pos, ids)  # still moving too much for a skin to pay
+            self._search(pos, ids)
+        elif not known:
             self._search(pos, ids)
         else:
-            # A hair inside skin / 2, so that round-off in the searches cannot matter.
-            limit = 0.5 * self.skin - 1e-6 * (self.radius + self.skin)
-            moved = torch.linalg.vector_norm((pos - self._ref).double(), dim=1) > limit
             movers = int(moved.sum())
-            if movers > FULL_SEARCH_FRACTION * n or (movers and pos.device.type != "cpu"):
+            if movers > FULL_SEARCH_FRACTION * n:
+                return self._plain(pos, ids)
+            if movers and pos.device.type != "cpu":
                 self._search(pos, ids)
             elif movers:
                 self._refresh(pos, moved.numpy())
         if pos.device.type == "cpu":  # numpy: 4-5x faster gathers than torch here
             coords, pairs = pos.numpy(), self._pairs.numpy()
-            keep = _within(coords, pairs[1], pairs[0], coords.dtype.type(self.radius**2))
+            keep = self._sure.copy()
+            shell = self._shell_pairs
+            keep[self._shell] = _within(
+                coords, shell[1], shell[0], coords.dtype.type(self.radius**2)
+            )
             return torch.from_numpy(pairs.compress(keep, axis=1))
         src, dst = self._pairs
         keep = _sq_dist(pos, dst, src) < torch.tensor(self.radius**2, dtype=pos.dtype)
         return self._pairs[:, keep]
+
+    def _plain(self, pos: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+        """A plain radius graph; remember the positions to measure the next step's moves."""
+        self.plain += 1
+        self._stepped_aside = True
+        self._ref, self._ids, self._pairs = pos.clone(), ids.clone(), None
+        return _radius_graph(pos, self.radius, self.backend, None, "pos")
+
+    def _classify(self) -> None:
+        """Split the candidates into sure pairs (closer than ``radius - skin`` at the
+        references) and the shell whose distance each step must measure (CPU)."""
+        if self._pairs.device.type != "cpu":
+            return
+        pairs = self._pairs.numpy()
+        ref = self._ref.double().numpy()
+        sq = np.zeros(pairs.shape[1])
+        for c in range(3):
+            col = np.ascontiguousarray(ref[:, c])
+            d = col[pairs[1]] - col[pairs[0]]
+            sq += d * d
+        inner = max(self.radius - self.skin, 0.0)
+        self._set_sure(sq < inner * inner)
+
+    def _set_sure(self, sure: np.ndarray) -> None:
+        self._sure = sure
+        self._shell = np.flatnonzero(~sure)
+        self._shell_pairs = np.ascontiguousarray(self._pairs.numpy()[:, self._shell])
 
     def _follow(self, ids: torch.Tensor) -> bool:
         """Restrict the cache to ``ids`` (a subset of the cached ids); False if impossible."""
@@ -106,14 +157,21 @@ class NeighbourList:
             return True
         if ids.numel() > self._ids.numel():
             return False
-        row = torch.searchsorted(self._ids, ids)
+        if ids.device.type == "cpu":  # numpy's is ~100x faster on a busy CPU
+            row = torch.from_numpy(np.searchsorted(self._ids.numpy(), ids.numpy()))
+        else:
+            row = torch.searchsorted(self._ids, ids)
         row = row.clamp(max=self._ids.numel() - 1)
         if not torch.equal(self._ids[row], ids):
             return False  # new particles: search again
-        new_index = torch.full((self._ids.numel(),), -1, dtype=torch.long, device=ids.device)
-        new_index[row] = torch.arange(ids.numel(), device=ids.device)
-        pairs = new_index[self._pairs]
-        self._pairs = pairs[:, (pairs >= 0).all(0)]  # a monotone relabel keeps the sort order
+        if self._pairs is not None:
+            new_index = torch.full((self._ids.numel(),), -1, dtype=torch.long, device=ids.device)
+            new_index[row] = torch.arange(ids.numel(), device=ids.device)
+            pairs = new_index[self._pairs]
+            stay = (pairs >= 0).all(0)
+            self._pairs = pairs[:, stay]  # a monotone relabel keeps the sort order
+            if self._sure is not None and self._pairs.device.type == "cpu":
+                self._set_sure(self._sure[stay.numpy()])
         self._ref, self._ids = self._ref[row], ids
         return True
 
@@ -121,6 +179,8 @@ class NeighbourList:
         self.builds += 1
         self._pairs = _radius_graph(pos, self.radius + self.skin, self.backend, None, "pos")
         self._ref, self._ids = pos.clone(), ids.clone()
+        self._stepped_aside = False
+        self._classify()
 
     def _refresh(self, pos: torch.Tensor, moved: np.ndarray) -> None:
         """Reset the movers' references and search their pairs again (CPU)."""
@@ -152,3 +212,4 @@ class NeighbourList:
         np.bitwise_and(merged, 0xFFFFFFFF, out=out[0])
         np.right_shift(merged, 32, out=out[1])
         self._pairs = torch.from_numpy(out)
+        self._classify()

@@ -41,13 +41,27 @@ def test_only_the_fast_particles_are_searched_again(seed):
 
 
 def test_a_move_beyond_half_the_skin_triggers_a_search():
-    pos = torch.tensor([[0.0, 0, 0], [0.009, 0, 0]])
+    pos = torch.tensor([[0.0, 0, 0], [0.009, 0, 0]] + [[0.1 * k, 0.1, 0] for k in range(8)])
     nl = NeighbourList(0.008, skin=0.002)
     assert nl(pos).shape[1] == 0 and nl.builds == 1
     pos[1, 0] = 0.0085  # moved 0.5 mm < skin / 2: filtered from the candidates
     assert nl(pos).shape[1] == 0 and nl.builds == 1
-    pos[1, 0] = 0.0075  # moved 1.5 mm > skin / 2: a new search, now an edge both ways
-    assert nl(pos).tolist() == [[1, 0], [0, 1]] and nl.builds == 2
+    pos[1, 0] = 0.0075  # moved 1.5 mm > skin / 2: its pairs are searched again, an edge both ways
+    assert nl(pos).tolist() == [[1, 0], [0, 1]] and nl.refreshes == 1 and nl.builds == 1
+
+
+def test_when_most_particles_move_the_list_steps_aside_then_comes_back():
+    """Reuse cannot pay while most particles leave their skin every step: plain graphs (no
+    skin) until they slow down, then one skinned search and reuse again."""
+    gen = torch.Generator().manual_seed(4)
+    pos = torch.rand(300, 3, generator=gen) * 0.05
+    nl = NeighbourList(0.008, skin=0.002)
+    for step in range(30):
+        jump = 2e-3 if 5 <= step < 15 else 1e-4  # 2 mm per step: beyond the skin
+        pos = pos + (torch.rand(pos.shape, generator=gen) - 0.5) * jump
+        assert torch.equal(nl(pos), radius_graph(pos, 0.008))
+    assert nl.plain == 10  # steps 5-14
+    assert nl.builds == 2  # the first call, then back at step 15
 
 
 def test_particles_that_leave_are_dropped_without_a_search():
@@ -100,3 +114,24 @@ def test_unsorted_radius_graph_has_the_same_edge_set():
     assert fast.shape == ordered.shape
     key = lambda e: torch.sort(e[1] * 500 + e[0]).values  # noqa: E731
     assert torch.equal(key(fast), key(ordered))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_pairs_kept_untested_are_within_the_radius_at_the_extreme_moves(dtype):
+    """Pairs closer than radius - skin at the references are kept without a distance test:
+    moved apart by (almost) half the skin each, they must still be edges, as a fresh graph
+    says; pairs just outside that bound are measured."""
+    radius, skin = 0.008, 0.002
+    gaps = radius - skin + torch.tensor([-1e-9, 0.0, 1e-9, 5e-4], dtype=torch.float64)
+    pos = torch.zeros(8, 3, dtype=torch.float64)
+    pos[1::2, 0] = gaps
+    pos[:, 1] = torch.arange(4, dtype=torch.float64).repeat_interleave(2) * 0.1  # pairs apart
+    nl = NeighbourList(radius, skin)
+    assert torch.equal(nl(pos.to(dtype)), radius_graph(pos.to(dtype), radius))
+    step = 0.5 * skin - 2e-6 * (radius + skin)  # just inside the list's move limit
+    pos[0::2, 0] -= step
+    pos[1::2, 0] += step
+    moved = pos.to(dtype)
+    assert torch.equal(nl(moved), radius_graph(moved, radius))
+    assert nl.builds == 1 and nl.refreshes == 0 and nl.plain == 0
+    assert nl(moved).shape[1] == 6  # the three pairs still closer than the radius, both ways
