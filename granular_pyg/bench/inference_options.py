@@ -6,7 +6,8 @@ model (``processor`` as configured) on a flowing frame of the bundled hopper, ti
 ``torch.inference_mode`` (what rollouts use), 1 against 2 torch threads, and the network
 compiled with ``torch.compile(dynamic=True)`` (edge counts change every step, so shapes are
 dynamic). The compile time is reported separately, and the compiled output is checked against
-the eager one.
+the eager one. The whole ``LearnedSimulator.step`` (with the integration) is timed without and
+with the wall guard (``wall_guard=true``), for the guard's cost.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from granular_pyg.config import compose
 from granular_pyg.io import read_trajectory
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
+from granular_pyg.simulator import WallGuard
 
 
 def _median_times(fns: dict, repeats: int) -> dict[str, float]:
@@ -53,8 +55,10 @@ def run(
     sim = instantiate(cfg.model).eval()
     traj = read_trajectory(sample_files("hopper", "test")[0])
     seq = torch.from_numpy(traj.positions[frame - 5 : frame + 1]).permute(1, 0, 2).contiguous()
-    seq = seq[torch.isfinite(seq).all(2).all(1)]
+    present = torch.isfinite(seq).all(2).all(1)
+    seq = seq[present]
     walls, t = WallSet(traj.scene), float(traj.times[frame])
+    margin = torch.from_numpy(traj.radii).double()[present]
 
     def step(net=None):
         graph = sim.build_graph(seq, walls, t)
@@ -68,11 +72,22 @@ def run(
 
         return fn
 
+    def whole_step(guarded: bool):
+        def fn():
+            torch.set_num_threads(threads)
+            guard = WallGuard(margin) if guarded else None
+            with torch.inference_mode():
+                return sim.step(seq, walls, t, traj.scene.outflow_z, guard=guard)
+
+        return fn
+
     fns = {
         "plain (autograd on)": under(contextlib.nullcontext),
         "no_grad": under(torch.no_grad),
         "inference_mode": under(torch.inference_mode),
         "inference_mode, 1 thread": under(torch.inference_mode, 1),
+        "whole step (+ integration)": whole_step(False),
+        "whole step + wall guard": whole_step(True),
     }
     compile_s, max_diff = float("nan"), float("nan")
     if compile:
