@@ -42,6 +42,7 @@ from granular_pyg.io import Trajectory, atomic_write, read_trajectory
 from granular_pyg.metrics import leaked_mask
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
+from granular_pyg.simulator import WallGuard
 
 __all__ = ["kinetic_energy", "stress_case"]
 
@@ -88,6 +89,7 @@ def stress_case(
     ke_limit: float = 10.0,
     sample_every: int = 16,
     progress: bool = True,
+    wall_guard: bool = False,
 ) -> tuple[dict, list[dict]]:
     """Roll ``sim`` out ``steps`` learned steps over ``truth``'s Scene, checking every step.
 
@@ -102,6 +104,8 @@ def stress_case(
         sample_every: steps between the sampled rows after the first ``sample_every ** 2``
             steps, each of which is a row (the checks run every step).
         progress: show a progress bar.
+        wall_guard: roll out with the wall guard (:class:`~granular_pyg.simulator.WallGuard`,
+            particle radii as margins); the summary counts its corrections.
 
     Returns:
         ``(summary, rows)``: the summary (``first_failure_step`` -1 when none, ``failure``,
@@ -128,6 +132,8 @@ def stress_case(
     runs = {"float32": start.float()}
     if compare_float64:
         runs["float64"] = start.double()
+    radii = torch.from_numpy(truth.radii).double()
+    guards = {name: WallGuard(radii) if wall_guard else None for name in runs}
     dt, t0 = float(sim.dt), float(truth.times[initial[-1]])
     mass, tol = _masses(truth), float(truth.radii.min())
     ke_truth = _truth_max_kinetic_energy(truth)
@@ -140,6 +146,7 @@ def stress_case(
         "dt_s": dt,
         "particles": truth.num_particles,
         "resting": resting,
+        "wall_guard": wall_guard,
         "truth_max_kinetic_energy_j": ke_truth,
         "first_failure_step": -1,
         "failure": "",
@@ -161,7 +168,7 @@ def stress_case(
             nxt = {}
             try:
                 for name, seq in runs.items():
-                    nxt[name] = sim.step(seq, walls, time)
+                    nxt[name] = sim.step(seq, walls, time, guard=guards[name])
             except NonFiniteError as exc:
                 fail(s, f"NaN/Inf prediction ({name}) for particle rows {exc.particle_ids[:10]}")
                 break
@@ -222,6 +229,8 @@ def stress_case(
                     }
                 )
     summary["steps_done"] = done
+    if wall_guard:
+        summary["wall_guard_corrections"] = guards["float32"].corrected
     summary["leaked_particles"] = int(leaked_ever.sum())
     summary["present_at_end"] = rows[-1]["present"] if rows else truth.num_particles
     return summary, rows
@@ -264,7 +273,8 @@ def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
         f"Command: `{command}`",
         "",
         "| case | steps done | k | particles | first failure | max KE / truth | leaked "
-        "| left (outflow) | escaped box | drift | max float32-float64 divergence (m) |",
+        "| left (outflow) | escaped box | drift | max float32-float64 divergence (m) "
+        "| wall-guard corrections |",
         "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|",
     ]
     for name, (s, _) in results.items():
@@ -274,7 +284,7 @@ def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
             f"| {name} | {s['steps_done']:,} / {s['steps']:,} | {s['k']} | {s['particles']} "
             f"| {first} | {s['max_kinetic_energy_ratio']:.3g} | {s['leaked_particles']} "
             f"| {s['left_through_outflow']} | {s['escaped_box']} | {s['drift']} "
-            f"| {s['max_divergence_m']:.3g} |"
+            f"| {s['max_divergence_m']:.3g} | {s.get('wall_guard_corrections', 'off')} |"
         )
     lines += ["", "![stress](stress.png)", ""]
     return "\n".join(lines)
@@ -299,6 +309,7 @@ def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
             ke_limit=float(cfg.ke_limit),
             sample_every=int(cfg.sample_every),
             progress=bool(cfg.progress),
+            wall_guard=bool(case.get("wall_guard", cfg.wall_guard)),
         )
     out_dir = Path(out_dir)
     command = "python -m granular_pyg.stress " + " ".join(sys.argv[1:])

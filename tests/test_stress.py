@@ -87,6 +87,22 @@ def test_resting_hopper_pushed_through_its_lid_is_a_leak(hopper):
     assert "leaked" in summary["failure"] and summary["leaked_particles"] > 0
 
 
+def test_the_wall_guard_holds_the_bed_a_model_pushes_through_its_lid(hopper):
+    """The same 100 g push as above, with the wall guard: nothing leaks, the lid takes it."""
+    summary, _ = stress_case(
+        _model(acc_mean=(0.0, 0.0, -980.0)),
+        hopper,
+        6,
+        resting=True,
+        compare_float64=False,
+        ke_limit=1e12,
+        progress=False,
+        wall_guard=True,
+    )
+    assert summary["leaked_particles"] == 0 and summary["first_failure_step"] == -1
+    assert summary["wall_guard"] is True and summary["wall_guard_corrections"] > 100
+
+
 def test_drum_keeps_every_particle():
     drum = read_trajectory(sample_files("drum", "test")[0])
     summary, rows = stress_case(_model(radius=0.01, k=2), drum, 6, progress=False)
