@@ -133,23 +133,26 @@ class WallSet:
         if not bool((margin > 0).all()):
             raise InputError("margin: the wall guard needs a positive distance (m) per particle")
         corrected = torch.zeros(p1.shape[0], dtype=torch.bool)
-        args = (start_time, end_time, margin, float(radius))
-        for _ in range(CONTAIN_PASSES):
-            fixed = self._first_crossing_fix(p0, p1, *args)
+        active = torch.arange(p1.shape[0])  # only corrected moves can cross anew
+        for passes in range(CONTAIN_PASSES + 1):
+            fixed = self._first_crossing_fix(
+                p0[active], p1[active], start_time, end_time, margin[active], float(radius)
+            )
             if fixed is None:
-                return p1.to(dtype), int(corrected.sum())
-            rows, positions = fixed
-            p1[rows] = positions
+                break
+            rows = active[fixed[0]]
+            if passes == CONTAIN_PASSES:
+                p1[rows] = p0[rows]
+                break
+            p1[rows] = fixed[1]
             corrected[rows] = True
-        fixed = self._first_crossing_fix(p0, p1, *args)
-        if fixed is not None:
-            p1[fixed[0]] = p0[fixed[0]]
+            active = rows
         return p1.to(dtype), int(corrected.sum())
 
     def _first_crossing_fix(self, p0, p1, t0, t1, margin, base):
         """``(rows, corrected ends)`` of the particles whose move crosses a wall, or None."""
         found = []  # (particle, fraction along the move, corrected end in the world frame)
-        for wall, index in zip(self.walls, self.indices, strict=True):
+        for wall, index, normals in zip(self.walls, self.indices, self.normals, strict=True):
             if not wall.present(t1):
                 continue
             rot0, shift0 = (torch.from_numpy(x) for x in wall.motion.pose(t0))
@@ -162,6 +165,14 @@ class WallSet:
                 rows = (level == lv).nonzero().squeeze(1)
                 cand, tri = index.candidates(q1[rows], base * 2.0**lv)
                 cand = rows[cand]
+                # Only pairs whose move ends on or past the triangle's plane can cross it.
+                origin, normal = index.triangles[tri, 0].double(), normals[tri].double()
+                a = ((q0[cand] - origin) * normal).sum(1)
+                b = ((q1[cand] - origin) * normal).sum(1)
+                side = (a != 0) & (a * b <= 0)
+                cand, tri = cand[side], tri[side]
+                if cand.numel() == 0:
+                    continue
                 hit = segment_triangle_crossings(q0[cand], q1[cand], index.triangles.double()[tri])
                 sel = hit.crosses
                 if bool(sel.any()):
