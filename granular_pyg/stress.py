@@ -13,6 +13,10 @@ keep its lid closed, a resting bed) and checks every learned step for:
   outflow floor (through a wall); as LIGGGHTS deletes atoms that leave its box, they are
   removed (so a particle flung away cannot outgrow float32) and counted as leaked;
 - particle-count drift: particles that vanished other than through the Scene's outflow;
+- a crushed bed: pairs of particles whose centres are closer than the smallest radius (half
+  overlapping, which DEM never lets happen), failing when more than ``overlap_limit`` of the
+  particles are in such pairs (a model pressing its bed into a wall the guard holds); the
+  case stops there, as a crushed bed's particle graph grows towards N^2 edges;
 
 and reports the first step where anything went wrong. With ``compare_float64`` a float64
 rollout runs in lockstep and their divergence (RMS distance between the two, m) is recorded
@@ -43,6 +47,7 @@ from granular_pyg.metrics import leaked_mask
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import WallGuard
+from granular_pyg.transforms import radius_graph
 
 __all__ = ["kinetic_energy", "stress_case"]
 
@@ -87,6 +92,7 @@ def stress_case(
     resting: bool = False,
     compare_float64: bool = True,
     ke_limit: float = 10.0,
+    overlap_limit: float = 0.01,
     sample_every: int = 16,
     progress: bool = True,
     wall_guard: bool = False,
@@ -101,6 +107,8 @@ def stress_case(
             frame at rest (its position repeated, zero velocity): a resting bed.
         compare_float64: also roll out in float64 and record the divergence.
         ke_limit: fail when the kinetic energy exceeds this times the truth's largest.
+        overlap_limit: fail when more than this fraction of the present particles has a
+            neighbour closer than the smallest radius.
         sample_every: steps between the sampled rows after the first ``sample_every ** 2``
             steps, each of which is a row (the checks run every step).
         progress: show a progress bar.
@@ -110,7 +118,8 @@ def stress_case(
     Returns:
         ``(summary, rows)``: the summary (``first_failure_step`` -1 when none, ``failure``,
         maxima, counts) and one row per sampled step (``step``, ``time_s``,
-        ``kinetic_energy_j``, ``present``, ``leaked``, ``drift``, ``divergence_m``).
+        ``kinetic_energy_j``, ``present``, ``leaked``, ``drift``, ``overlapping``,
+        ``divergence_m``).
     """
     from tqdm.auto import tqdm
 
@@ -154,6 +163,7 @@ def stress_case(
         "left_through_outflow": 0,
         "escaped_box": 0,
         "drift": 0,
+        "max_overlapping_particles": 0,
         "max_divergence_m": 0.0,
     }
 
@@ -200,6 +210,14 @@ def stress_case(
             summary["drift"] += drift
             if drift:
                 fail(s, f"{drift} particle(s) vanished other than through the outflow")
+            pos = nxt["float32"][after]
+            crushed = int(torch.unique(radius_graph(pos, tol)[0]).numel()) if len(pos) > 1 else 0
+            summary["max_overlapping_particles"] = max(
+                summary["max_overlapping_particles"], crushed
+            )
+            crushed_bed = crushed > overlap_limit * max(int(after.sum()), 1)
+            if crushed_bed:
+                fail(s, f"{crushed} particles closer than a radius to another (a crushed bed)")
             energy = kinetic_energy(seq[:, -1], nxt["float32"], mass, dt)
             ratio = energy / ke_truth if ke_truth > 0 else (math.inf if energy > 0 else 0.0)
             summary["max_kinetic_energy_ratio"] = max(summary["max_kinetic_energy_ratio"], ratio)
@@ -215,7 +233,7 @@ def stress_case(
             for name in runs:
                 runs[name] = torch.cat([runs[name][:, 1:], nxt[name][:, None]], dim=1)
             done = s + 1
-            if s < sample_every**2 or s % sample_every == 0 or s == steps - 1:
+            if crushed_bed or s < sample_every**2 or s % sample_every == 0 or s == steps - 1:
                 rows.append(
                     {
                         "step": s,
@@ -225,9 +243,12 @@ def stress_case(
                         "present": int(after.sum()),
                         "leaked": int(leaked_ever.sum()),
                         "drift": summary["drift"],
+                        "overlapping": crushed,
                         "divergence_m": divergence,
                     }
                 )
+            if crushed_bed:  # its graph grows towards N^2 edges: every further step slower
+                break
     summary["steps_done"] = done
     if wall_guard:
         summary["wall_guard_corrections"] = guards["float32"].corrected
@@ -273,9 +294,9 @@ def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
         f"Command: `{command}`",
         "",
         "| case | steps done | k | particles | first failure | max KE / truth | leaked "
-        "| left (outflow) | escaped box | drift | max float32-float64 divergence (m) "
-        "| wall-guard corrections |",
-        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|",
+        "| left (outflow) | escaped box | drift | max overlapping | "
+        "max float32-float64 divergence (m) | wall-guard corrections |",
+        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name, (s, _) in results.items():
         first = "none" if s["first_failure_step"] < 0 else f"step {s['first_failure_step']}: "
@@ -284,6 +305,7 @@ def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
             f"| {name} | {s['steps_done']:,} / {s['steps']:,} | {s['k']} | {s['particles']} "
             f"| {first} | {s['max_kinetic_energy_ratio']:.3g} | {s['leaked_particles']} "
             f"| {s['left_through_outflow']} | {s['escaped_box']} | {s['drift']} "
+            f"| {s['max_overlapping_particles']} "
             f"| {s['max_divergence_m']:.3g} | {s.get('wall_guard_corrections', 'off')} |"
         )
     lines += ["", "![stress](stress.png)", ""]
@@ -307,6 +329,7 @@ def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
             resting=bool(case.get("resting", False)),
             compare_float64=bool(case.get("compare_float64", cfg.compare_float64)),
             ke_limit=float(cfg.ke_limit),
+            overlap_limit=float(cfg.overlap_limit),
             sample_every=int(cfg.sample_every),
             progress=bool(cfg.progress),
             wall_guard=bool(case.get("wall_guard", cfg.wall_guard)),

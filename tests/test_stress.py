@@ -88,7 +88,8 @@ def test_resting_hopper_pushed_through_its_lid_is_a_leak(hopper):
 
 
 def test_the_wall_guard_holds_the_bed_a_model_pushes_through_its_lid(hopper):
-    """The same 100 g push as above, with the wall guard: nothing leaks, the lid takes it."""
+    """The same 100 g push as above, with the wall guard: nothing leaks, the lid takes it, and
+    the bed pressed into the lid is reported crushed, where the case stops."""
     summary, _ = stress_case(
         _model(acc_mean=(0.0, 0.0, -980.0)),
         hopper,
@@ -99,8 +100,11 @@ def test_the_wall_guard_holds_the_bed_a_model_pushes_through_its_lid(hopper):
         progress=False,
         wall_guard=True,
     )
-    assert summary["leaked_particles"] == 0 and summary["first_failure_step"] == -1
-    assert summary["wall_guard"] is True and summary["wall_guard_corrections"] > 100
+    assert summary["leaked_particles"] == 0 and summary["wall_guard"] is True
+    assert summary["wall_guard_corrections"] > 100
+    assert "crushed bed" in summary["failure"]
+    assert summary["steps_done"] == summary["first_failure_step"] + 1 < 6
+    assert summary["max_overlapping_particles"] > 0.01 * 948
 
 
 def test_drum_keeps_every_particle():
