@@ -103,8 +103,8 @@ def test_the_wall_guard_holds_the_bed_a_model_pushes_through_its_lid(hopper):
     assert summary["leaked_particles"] == 0 and summary["wall_guard"] is True
     assert summary["wall_guard_corrections"] > 100
     assert "crushed bed" in summary["failure"]
-    assert summary["steps_done"] == summary["first_failure_step"] + 1 < 6
-    assert summary["max_overlapping_particles"] > 0.01 * 948
+    assert summary["first_failure_step"] < summary["steps_done"] < 6
+    assert summary["max_overlapping_particles"] > 0.5 * 948
 
 
 def test_drum_keeps_every_particle():

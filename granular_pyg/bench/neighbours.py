@@ -55,6 +55,15 @@ def _interleaved(fns: dict[str, Callable[[], object]], repeats: int) -> dict[str
     return {name: statistics.median(ts) for name, ts in times.items()}
 
 
+def _rounds(fn: Callable[[], object], repeats: int, budget_s: float = 0.5) -> int:
+    """Rounds for :func:`_interleaved`: at least ``repeats`` and 11, and enough for ``fn`` to
+    take about ``budget_s`` in all (a 4 ms search needs ~100 for a stable median), at most 401."""
+    start = time.perf_counter()
+    fn()
+    once = max(time.perf_counter() - start, 1e-6)
+    return int(min(max(repeats, 11, budget_s / once), 401))
+
+
 def _query_pairs_rows(num_points, radius_in_spacings: float, repeats: int) -> list[dict]:
     from scipy.spatial import cKDTree
 
@@ -69,7 +78,7 @@ def _query_pairs_rows(num_points, radius_in_spacings: float, repeats: int) -> li
                 "unsorted": lambda p=pos: radius_graph(p, r, "scipy", sort=False),
                 "sorted": lambda p=pos: radius_graph(p, r, "scipy"),
             },
-            max(repeats, 11),
+            _rounds(lambda p=p64: cKDTree(p).query_pairs(r, output_type="ndarray"), repeats),
         )
         rows.append(
             {
