@@ -272,6 +272,7 @@ def _figure(results: dict[str, tuple[dict, list[dict]]]):
         ("divergence_m", "float32 - float64 RMS distance (m)"),
         ("present", "particles present"),
         ("leaked", "leaked particles (ever)"),
+        ("overlapping", "particles closer than a radius to another"),
     )
     fig, axes = plt.subplots(1, len(panels), figsize=(4.2 * len(panels), 3.4))
     for name, (summary, rows) in results.items():
