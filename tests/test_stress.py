@@ -73,8 +73,8 @@ def test_energy_growth_is_reported(hopper):
     assert "kinetic energy" in summary["failure"] and summary["max_kinetic_energy_ratio"] > 10
 
 
-def test_resting_hopper_pushed_through_its_lid_is_a_leak(hopper):
-    # Gravity x 100: the bed is driven through the lid, which is kept closed.
+def _pushed_through_the_lid(hopper, wall_guard: bool) -> dict:
+    """A resting bed under 100 g (a model that always predicts -980 m/s^2), lid kept closed."""
     summary, _ = stress_case(
         _model(acc_mean=(0.0, 0.0, -980.0)),
         hopper,
@@ -83,23 +83,20 @@ def test_resting_hopper_pushed_through_its_lid_is_a_leak(hopper):
         compare_float64=False,
         ke_limit=1e12,
         progress=False,
+        wall_guard=wall_guard,
     )
+    return summary
+
+
+def test_resting_hopper_pushed_through_its_lid_is_a_leak(hopper):
+    summary = _pushed_through_the_lid(hopper, wall_guard=False)
     assert "leaked" in summary["failure"] and summary["leaked_particles"] > 0
 
 
 def test_the_wall_guard_holds_the_bed_a_model_pushes_through_its_lid(hopper):
-    """The same 100 g push as above, with the wall guard: nothing leaks, the lid takes it, and
-    the bed pressed into the lid is reported crushed, where the case stops."""
-    summary, _ = stress_case(
-        _model(acc_mean=(0.0, 0.0, -980.0)),
-        hopper,
-        6,
-        resting=True,
-        compare_float64=False,
-        ke_limit=1e12,
-        progress=False,
-        wall_guard=True,
-    )
+    """The same push with the wall guard: nothing leaks, the lid takes it, and the bed pressed
+    into the lid is reported crushed, where the case stops."""
+    summary = _pushed_through_the_lid(hopper, wall_guard=True)
     assert summary["leaked_particles"] == 0 and summary["wall_guard"] is True
     assert summary["wall_guard_corrections"] > 100
     assert "crushed bed" in summary["failure"]
