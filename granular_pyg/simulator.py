@@ -295,6 +295,11 @@ class LearnedSimulator(nn.Module):
         next_vel = last_vel + self.dt * acc
         nxt = seq[:, -1].double() + self.dt * next_vel
         if guard is not None:
+            if guard.margin.shape != present.shape:
+                raise InputError(
+                    f"guard.margin: expected one distance per particle, shape "
+                    f"[{present.shape[0]}], got {list(guard.margin.shape)}"
+                )
             end_time = time + float(self.dt)
             margin = guard.margin[present]
             nxt, corrected = walls.contain(
