@@ -137,8 +137,9 @@ def _replay(sim, traj, skin: float | None, frames: range) -> dict:
     step."""
     walls = WallSet(traj.scene)
     rg = sim.radius_graph
-    lists = [None if skin is None else NeighbourList(rg.radius, skin, rg.backend) for _ in "ab"]
-    nl, nl_build = lists
+    nl, nl_build = (
+        None if skin is None else NeighbourList(rg.radius, skin, rg.backend) for _ in range(2)
+    )
     h, k = sim.history, frames.step
     graph_s = build_s = 0.0
     edges = []
