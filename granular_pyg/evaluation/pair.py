@@ -102,6 +102,9 @@ def evaluate_pair(
     prof_p = metrics.flow_profile(p_pos, p_vel, z_bins=FLOW_BINS, z_range=z_range)
     edges = np.linspace(*z_range, FLOW_BINS + 1)
 
+    closest = float(truth.radii.min())
+    crushed_p = metrics.crushed_particles(p_pos[first:], closest)
+    crushed_t = metrics.crushed_particles(t_pos[first:], closest)
     leaked_p = metrics.leaked_particles(p_pos, truth.scene, pred.times, truth.radii)
     leaked_t = metrics.leaked_particles(t_pos, truth.scene, pred.times, truth.radii)
     scalars = {
@@ -114,6 +117,8 @@ def evaluate_pair(
         "flow_profile_error": float(np.nanmean(np.abs(prof_t - prof_p))),
         "leaked_particles": float(leaked_p),
         "leaked_particles_truth": float(leaked_t),
+        "crushed_particles": float(crushed_p.max(initial=0)),
+        "crushed_particles_truth": float(crushed_t.max(initial=0)),
     }
     series = {
         "times": pred.times,

@@ -3,7 +3,8 @@
 - :mod:`~granular_pyg.metrics.emd`: the paper's EMD (W2^2 with POT, or W1) and EMD at 2^k.
 - :mod:`~granular_pyg.metrics.flow`: position MSE, mixing entropy, flow profiles, discharge rate,
   leakage.
-- :mod:`~granular_pyg.metrics.physics`: discharged fraction, centre of mass, angle of repose.
+- :mod:`~granular_pyg.metrics.physics`: discharged fraction, centre of mass, angle of repose,
+  crushed particles.
 """
 
 from granular_pyg.metrics.emd import emd, emd_at_powers
@@ -19,12 +20,14 @@ from granular_pyg.metrics.flow import (
 )
 from granular_pyg.metrics.physics import (
     centre_of_mass,
+    crushed_particles,
     discharged_fraction,
     dynamic_angle_of_repose,
 )
 
 __all__ = [
     "centre_of_mass",
+    "crushed_particles",
     "discharge_rate",
     "discharged_fraction",
     "dynamic_angle_of_repose",

@@ -12,6 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 from granular_pyg.errors import InputError
 from granular_pyg.metrics import (
+    crushed_particles,
     discharge_rate,
     dynamic_angle_of_repose,
     emd,
@@ -199,3 +200,26 @@ def test_leakage_in_the_hopper_respects_the_lid_and_the_v():
     pos[:, 2] = [0.0, 0.0, z]  # inside
     mask = leaked_mask(pos, scene, times)
     assert mask.tolist() == [[True, True, False], [False, True, False]]
+
+
+def test_crushed_particles_counts_centres_closer_than_the_distance():
+    frame = np.array(
+        [[0.0, 0, 0], [0.001, 0, 0], [0.01, 0, 0], [0.012, 0, 0], [np.nan, np.nan, np.nan]]
+    )
+    apart = frame.copy()
+    apart[1, 0] = 0.004
+    counts = crushed_particles(np.stack([frame, apart]), 0.0015)
+    assert counts.tolist() == [2, 0]  # 1 mm apart: crushed; 2 mm and 4 mm apart: not
+
+
+def test_crushed_particles_matches_brute_force():
+    rng = np.random.default_rng(3)
+    pos = rng.uniform(0, 0.02, size=(4, 300, 3))
+    pos[2, :40] = np.nan
+    counts = crushed_particles(pos, 0.0015)
+    for f in range(4):
+        p = pos[f][np.isfinite(pos[f]).all(1)]
+        d = np.linalg.norm(p[:, None] - p[None], axis=-1) + np.eye(len(p))
+        assert counts[f] == int((d < 0.0015).any(1).sum())
+    with pytest.raises(InputError, match="distance"):
+        crushed_particles(pos, 0.0)
