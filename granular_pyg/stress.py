@@ -44,11 +44,10 @@ from omegaconf import DictConfig
 from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.inference import load_simulator, time_step_multiple
 from granular_pyg.io import Trajectory, atomic_write, read_trajectory
-from granular_pyg.metrics import leaked_mask
+from granular_pyg.metrics import crushed_particles, leaked_mask
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import WallGuard
-from granular_pyg.transforms import radius_graph
 
 __all__ = ["kinetic_energy", "stress_case"]
 
@@ -213,8 +212,7 @@ def stress_case(
             summary["drift"] += drift
             if drift:
                 fail(s, f"{drift} particle(s) vanished other than through the outflow")
-            pos = nxt["float32"][after]
-            crushed = int(torch.unique(radius_graph(pos, tol)[0]).numel()) if len(pos) > 1 else 0
+            crushed = int(crushed_particles(nxt["float32"].numpy()[None], tol)[0])
             summary["max_overlapping_particles"] = max(
                 summary["max_overlapping_particles"], crushed
             )

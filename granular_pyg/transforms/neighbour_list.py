@@ -35,6 +35,7 @@ from granular_pyg.transforms.radius_graph import (
     _SLACK_ULPS,
     _checked_radius,
     _radius_graph,
+    _split_keys,
     _sq_dist,
     _within,
 )
@@ -135,14 +136,9 @@ class NeighbourList:
         if self._pairs.device.type != "cpu":
             return
         pairs = self._pairs.numpy()
-        ref = self._ref.double().numpy()
-        sq = np.zeros(pairs.shape[1])
-        for c in range(3):
-            col = np.ascontiguousarray(ref[:, c])
-            d = col[pairs[1]] - col[pairs[0]]
-            sq += d * d
         inner = max(self.radius - self.skin, 0.0)
-        self._set_sure(sq < inner * inner)
+        ref = self._ref.double().numpy()  # float64: the exact reference distances
+        self._set_sure(_within(ref, pairs[1], pairs[0], np.float64(inner * inner)))
 
     def _set_sure(self, sure: np.ndarray) -> None:
         self._sure = sure
@@ -207,9 +203,5 @@ class NeighbourList:
         )
         keys = np.sort((target << 32) | source)
         old = (kept[1] << 32) | kept[0]
-        merged = np.insert(old, np.searchsorted(old, keys), keys)
-        out = np.empty((2, merged.shape[0]), dtype=np.int64)
-        np.bitwise_and(merged, 0xFFFFFFFF, out=out[0])
-        np.right_shift(merged, 32, out=out[1])
-        self._pairs = torch.from_numpy(out)
+        self._pairs = _split_keys(np.insert(old, np.searchsorted(old, keys), keys))
         self._classify()
