@@ -153,6 +153,10 @@ def _min_angle_deg(tri: np.ndarray) -> float:
     return min(angles)
 
 
+def _shortest_edge(tri: np.ndarray) -> float:
+    return min(float(np.linalg.norm(tri[i] - tri[(i + 1) % 3])) for i in range(3))
+
+
 @settings(max_examples=60, deadline=None)
 @given(coords)
 def test_matches_brute_force_reference_in_float64(data):
@@ -171,7 +175,14 @@ def test_matches_brute_force_reference_in_float64(data):
 @settings(max_examples=20, deadline=None)
 @given(coords)
 def test_matches_trimesh_proximity(data):
-    keep = [i for i in range(len(data)) if _min_angle_deg(data[i, 1:]) > 0.256]
+    """Against trimesh on triangles it resolves: its fixed tolerances (1e-8 and below) misplace
+    the closest point of triangles a few micrometres across, which the float64 brute-force test
+    above covers at every scale."""
+    keep = [
+        i
+        for i in range(len(data))
+        if _min_angle_deg(data[i, 1:]) > 0.256 and _shortest_edge(data[i, 1:]) > 1e-3
+    ]
     if not keep:
         return
     data = data[keep]
