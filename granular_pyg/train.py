@@ -24,6 +24,9 @@ __all__ = ["train"]
 #: Config sections that must match between a checkpoint and the run that resumes it.
 RESUME_KEYS = ("model", "data")
 
+#: Keys added after checkpoints were first written, with the behaviour those checkpoints had.
+ADDED_KEYS = {"data.noise_target": "velocity"}
+
 
 def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
     path = Path(ckpt_path)
@@ -36,6 +39,9 @@ def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
     differ = []
     for section in RESUME_KEYS:
         old, new = _flatten(saved.get(section, {})), _flatten(now.get(section, {}))
+        old = {
+            k[len(section) + 1 :]: v for k, v in ADDED_KEYS.items() if k.startswith(f"{section}.")
+        } | old
         differ += [
             f"{section}.{k}: {old.get(k)!r} -> {new.get(k)!r}"
             for k in sorted(set(old) | set(new))

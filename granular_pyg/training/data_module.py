@@ -87,8 +87,16 @@ class _Collate:
     by ``(seed, epoch, window)``, so it does not depend on workers or on resuming.
     """
 
-    def __init__(self, sim: LearnedSimulator, noise_std: float, resample: bool, seed: int):
+    def __init__(
+        self,
+        sim: LearnedSimulator,
+        noise_std: float,
+        resample: bool,
+        seed: int,
+        correct_positions: bool = False,
+    ):
         self.sim, self.noise_std, self.resample, self.seed = sim, noise_std, resample, seed
+        self.correct_positions = correct_positions
 
     def __call__(self, windows: list[Window]) -> Batch:
         graphs = []
@@ -97,7 +105,10 @@ class _Collate:
             if self.noise_std > 0:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
-                    self.noise_std, self.resample, generator=torch.Generator().manual_seed(key)
+                    self.noise_std,
+                    self.resample,
+                    generator=torch.Generator().manual_seed(key),
+                    correct_positions=self.correct_positions,
                 )
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
@@ -125,6 +136,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         noise_std: random-walk noise on the training inputs (m per step); the statistics'
             stds are inflated by it.
         resample_noise_at_walls: resample noise that would cross a wall (BGNN).
+        noise_target: ``"velocity"`` (GNS: the target keeps the last position's noise, the
+            model learns to correct velocities) or ``"position"`` (the clean target: the model
+            also learns to undo position noise, i.e. to push pressed particles apart).
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         push_forward_steps: extra future frames kept per window for push-forward training.
@@ -142,6 +156,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         num_workers: int = 0,
         noise_std: float = 0.0,
         resample_noise_at_walls: bool = True,
+        noise_target: str = "velocity",
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         push_forward_steps: int = 0,
@@ -155,6 +170,11 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.history, self.step = int(history), int(step)
         self.batch_size, self.num_workers = int(batch_size), int(num_workers)
         self.noise_std, self.resample = float(noise_std), bool(resample_noise_at_walls)
+        if noise_target not in ("velocity", "position"):
+            raise InputError(
+                f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
+            )
+        self.correct_positions = noise_target == "position"
         self.train_samples, self.val_samples = train_samples_per_epoch, val_samples
         self.push_forward_steps = int(push_forward_steps)
         self.trajectories = trajectories
@@ -195,7 +215,7 @@ class TrajectoryDataModule(L.LightningDataModule):
     def _loader(self, dataset, num_samples, shuffle: bool, noise: float, **kwargs) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
-        collate = _Collate(self.sim, noise, self.resample, self.seed)
+        collate = _Collate(self.sim, noise, self.resample, self.seed, self.correct_positions)
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,

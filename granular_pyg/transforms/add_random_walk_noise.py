@@ -19,9 +19,12 @@ class AddRandomWalkNoise(BaseTransform):
     Per particle, the per-frame displacements (velocities times the step) of the ``H``
     history steps get independent Gaussian increments of std :math:`\sigma / \sqrt{H}`,
     accumulated over time, so the last velocity's noise has std :math:`\sigma` (m per step);
-    positions integrate that noise from zero at the oldest frame. The target is shifted by the
-    last position's noise (GNS): the model then learns to correct the noisy velocity back onto
-    the true next one.
+    positions integrate that noise from zero at the oldest frame. By default the target is
+    shifted by the last position's noise (GNS): the model then learns to correct the noisy
+    velocity back onto the true next one, and keeps the position noise. With
+    ``correct_positions`` the target stays the clean next position, so the model learns to undo
+    the position noise as well: to push apart particles that the noise pressed into each other
+    (granular contacts, unlike GNS's fluids, have a hard core).
 
     With ``walls`` set, a particle whose noisy current position lies on the other side of a
     wall triangle within ``wall_check`` than its clean position gets fresh noise, up to
@@ -37,6 +40,7 @@ class AddRandomWalkNoise(BaseTransform):
         wall_check: distance (m) within which triangles are checked; default ``100 * std``.
         max_tries: resampling rounds before giving up (noise zero for those particles).
         generator: optional ``torch.Generator`` for reproducible noise.
+        correct_positions: keep the clean target (learn to undo position noise too).
     """
 
     def __init__(
@@ -46,6 +50,7 @@ class AddRandomWalkNoise(BaseTransform):
         wall_check: float | None = None,
         max_tries: int = 5,
         generator: torch.Generator | None = None,
+        correct_positions: bool = False,
     ) -> None:
         if not (std >= 0 and math.isfinite(std)):
             raise InputError(f"std: expected a finite noise level >= 0 (m), got {std!r}")
@@ -54,9 +59,13 @@ class AddRandomWalkNoise(BaseTransform):
         self.wall_check = float(wall_check) if wall_check is not None else 100.0 * self.std
         self.max_tries = int(max_tries)
         self.generator = generator
+        self.correct_positions = bool(correct_positions)
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(std={self.std}, resample_at_walls={self.resample_at_walls})"
+        return (
+            f"{type(self).__name__}(std={self.std}, resample_at_walls={self.resample_at_walls}, "
+            f"correct_positions={self.correct_positions})"
+        )
 
     def _walk(self, shape, like: torch.Tensor) -> torch.Tensor:
         """``[N, H + 1, 3]`` position noise: zero at the oldest frame, a random walk after."""
@@ -94,6 +103,6 @@ class AddRandomWalkNoise(BaseTransform):
             noise[redo] = 0.0
         data.pos_seq = seq + noise
         data.pos = data.pos_seq[:, -1]
-        if "target_pos" in data:
+        if "target_pos" in data and not self.correct_positions:
             data.target_pos = data.target_pos + noise[:, -1]
         return data

@@ -130,6 +130,19 @@ def test_resume_with_a_different_model_names_the_keys(tmp_path):
         train(_steps_cfg(2, f"ckpt_path={ckpt}", "model.latent=32"), tmp_path / "again")
 
 
+def test_a_checkpoint_from_before_noise_target_resumes_as_velocity(tmp_path):
+    from granular_pyg.train import _check_resume
+
+    train(_steps_cfg(1, "trainer.fast_dev_run=false", "checkpoint.every_n_train_steps=1"), tmp_path)
+    ckpt = tmp_path / "checkpoints" / "last.ckpt"
+    state = torch.load(ckpt, map_location="cpu", weights_only=False)
+    del state["config"]["data"]["noise_target"]  # as written before the key existed
+    torch.save(state, ckpt)
+    _check_resume(str(ckpt), _steps_cfg(2))  # the default, velocity: the old behaviour
+    with pytest.raises(InputError, match=r"data\.noise_target: 'velocity' -> 'position'"):
+        _check_resume(str(ckpt), _steps_cfg(2, "data.noise_target=position"))
+
+
 @pytest.mark.slow
 def test_200_steps_on_one_trajectory_lower_the_validation_loss(tmp_path):
     """Learning works: 200 steps on a stretch of one bundled trajectory (frames 20-29, four

@@ -39,6 +39,30 @@ def test_random_walk_noise_has_the_requested_last_velocity_std():
     assert torch.equal(data.pos, data.pos_seq[:, -1])
 
 
+def test_correcting_positions_keeps_the_clean_target():
+    """With ``correct_positions`` the inputs get the same noise, but the target stays clean, so
+    the target acceleration undoes the position noise: a pair pressed together by the noise is
+    asked to move apart."""
+    seq = _sequence(1000)
+    target = seq[:, -1] + 1e-4
+    gns, clean = (
+        AddRandomWalkNoise(3e-5, generator=torch.Generator().manual_seed(1), correct_positions=c)
+        for c in (False, True)
+    )
+    a = gns(Data(pos_seq=seq.clone(), target_pos=target.clone()))
+    b = clean(Data(pos_seq=seq.clone(), target_pos=target.clone()))
+    assert torch.equal(a.pos_seq, b.pos_seq)
+    assert torch.equal(b.target_pos, target)
+    torch.testing.assert_close(a.target_pos - b.target_pos, a.pos_seq[:, -1] - seq[:, -1])
+
+
+def test_noise_target_must_be_velocity_or_position():
+    from granular_pyg.training import TrajectoryDataModule
+
+    with pytest.raises(InputError, match="noise_target"):
+        TrajectoryDataModule(sample="hopper", noise_target="both")
+
+
 def test_zero_noise_changes_nothing():
     seq = _sequence(100)
     data = AddRandomWalkNoise(0.0)(Data(pos_seq=seq.clone()))
