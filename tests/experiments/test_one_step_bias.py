@@ -45,7 +45,7 @@ def _sim(hopper, offset: float | None):
         acc = (positions[frame + STEP, rows] - 2 * pos_seq[:, -1] + pos_seq[:, -2]) / dt**2
         return (acc + torch.tensor([0.0, 0.0, offset], dtype=torch.float64)).float()
 
-    for t in range(hopper.num_frames - STEP):  # the particles of each window, as the tool keeps them
+    for t in range(hopper.num_frames - STEP):  # each window's particles, as the tool keeps them
         frames = np.arange(t - sim.history * STEP, t + STEP + 1, STEP)
         if frames[0] >= 0:
             ids[t] = torch.from_numpy(np.flatnonzero(hopper.present[frames].all(axis=0)))
