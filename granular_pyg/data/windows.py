@@ -76,7 +76,9 @@ class WindowDataset(Dataset):
         history: ``H`` past velocities.
         step: time-step multiple ``k`` (frames per learned step).
         extra_steps: further target frames kept after the window (push-forward training):
-            ``future [N, extra_steps, 3]`` at ``t + 2k, ...``.
+            ``future [N, extra_steps, 3]`` at ``t + 2k, ...``, NaN for a particle that has
+            left by then. They do not change which particles a window holds (those present
+            in its ``H + 2`` frames), so the plain windows are the same with or without them.
     """
 
     def __init__(
@@ -101,8 +103,7 @@ class WindowDataset(Dataset):
         for i, traj in enumerate(self.trajs):
             present = traj.present
             for t in range(span_before, traj.num_frames - span_after):
-                frames = self._frames(t)
-                if present[frames].all(axis=0).any():
+                if present[self._frames(t)[: self.history + 2]].all(axis=0).any():
                     self.index.append((i, t))
         if not self.index:
             raise InputError(
@@ -129,9 +130,9 @@ class WindowDataset(Dataset):
         i, t = self.index[item]
         traj = self.trajs[i]
         frames = self._frames(t)
-        keep = traj.present[frames].all(axis=0)
-        window = torch.from_numpy(traj.positions[frames][:, keep]).permute(1, 0, 2)
         h = self.history + 1
+        keep = traj.present[frames[: h + 1]].all(axis=0)
+        window = torch.from_numpy(traj.positions[frames][:, keep]).permute(1, 0, 2)
         sample = Window(
             pos_seq=window[:, :h].contiguous(),
             target_pos=window[:, h].contiguous(),

@@ -22,7 +22,8 @@ class SimulatorModule(L.LightningModule):
     Push-forward training (LagrangeBench): with ``push_forward_steps = p > 0``, a batch is, with
     probability ``push_forward_prob``, first rolled forward ``u ~ U{1..p}`` steps by the model
     itself (no gradient) and the loss taken on the step after, so the model learns from its own
-    slightly wrong inputs.
+    slightly wrong inputs. As in a rollout, particles the model moves below the outflow leave;
+    the loss covers the particles still present in the ground truth one step on.
 
     The RNG states (python, numpy, torch) are saved in checkpoints and restored on resume, so a
     resumed run continues exactly.
@@ -55,10 +56,17 @@ class SimulatorModule(L.LightningModule):
         return self.sim(batch)
 
     def _loss(self, batch: Batch) -> torch.Tensor:
-        return torch.nn.functional.mse_loss(self.sim(batch), batch.y)
+        pred, target = self.sim(batch), batch.y
+        known = torch.isfinite(target).all(dim=1)  # NaN: left in the ground truth (push-forward)
+        if not bool(known.all()):
+            if not bool(known.any()):
+                return pred.sum() * 0.0
+            pred, target = pred[known], target[known]
+        return torch.nn.functional.mse_loss(pred, target)
 
     def _pushed_forward(self, batch: Batch) -> Batch:
-        """Roll each window forward ``u`` model steps and rebuild its graph and target."""
+        """Roll each window forward ``u`` model steps and rebuild its graph and target (NaN for
+        particles that the ground truth has lost by then)."""
         unroll = random.randint(1, self.push_forward_steps)
         graphs = []
         for w in batch.windows:
@@ -66,11 +74,15 @@ class SimulatorModule(L.LightningModule):
             known = torch.cat([w.target_pos[:, None], w.future], dim=1)  # t + k, t + 2k, ...
             dt = float(self.sim.dt)
             for u in range(unroll):
-                nxt = self.sim.step(seq, w.walls, w.time + u * dt)
-                nxt = torch.where(torch.isfinite(nxt), nxt, known[:, u])
+                nxt = self.sim.step(seq, w.walls, w.time + u * dt, w.outflow_z)
                 seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
-            graph = self.sim.build_graph(seq, w.walls, w.time + unroll * dt)
-            graph.y = self.sim.target_acceleration(seq, known[:, unroll])
+            held = torch.isfinite(seq).all(dim=2).all(dim=1)  # not yet left in the model's run
+            if bool(held.any()):
+                seq, target, time = seq[held], known[held, unroll], w.time + unroll * dt
+            else:  # every particle left: the window's own step instead
+                seq, target, time = w.pos_seq, w.target_pos, w.time
+            graph = self.sim.build_graph(seq, w.walls, time)
+            graph.y = self.sim.target_acceleration(seq, target)
             graphs.append(graph)
         return Batch.from_data_list(graphs).to(self.device)
 

@@ -6,11 +6,14 @@ import numpy as np
 import pytest
 import torch
 from hydra.utils import instantiate
+from scipy.spatial import cKDTree
+from torch_geometric.data import Batch
 
 from granular_pyg.config import compose
 from granular_pyg.data.windows import WindowDataset
 from granular_pyg.io import read_trajectory
 from granular_pyg.samples import sample_files
+from granular_pyg.scenes import WallSet, make_hopper
 from granular_pyg.training import SimulatorModule
 from granular_pyg.training.data_module import _Collate
 
@@ -22,51 +25,102 @@ def hopper():
     return read_trajectory(sample_files("hopper", "train")[0])
 
 
-def _frames(t: int, extra: int) -> np.ndarray:
-    return np.arange(t - HISTORY * STEP, t + (2 + extra) * STEP, STEP)
+def _base_frames(t: int) -> np.ndarray:
+    """The ``H + 2`` frames of the window at ``t``: its inputs and its target."""
+    return np.arange(t - HISTORY * STEP, t + 2 * STEP, STEP)
 
 
-def test_windows_keep_the_future_frames_of_their_particles(hopper):
+def _window_losing(ds: WindowDataset, hopper, after: int) -> int:
+    """Index of the first window with a particle present ``after`` steps after its last input
+    frame and gone one step later."""
+    for item, (_, t) in enumerate(ds.index):
+        keep = hopper.present[_base_frames(t)].all(axis=0)
+        there = hopper.present[t + after * STEP] & keep
+        if (there & ~hopper.present[t + (after + 1) * STEP]).any():
+            return item
+    raise AssertionError("no particle leaves the bundled hopper")
+
+
+def test_future_frames_keep_the_particles_that_leave_as_nan(hopper):
+    """Push-forward's future frames do not change a window's particles: one that leaves later
+    is NaN there, not dropped from the window."""
+    plain = WindowDataset([hopper], HISTORY, STEP)
     ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=2)
-    w = ds[len(ds) // 2]
+    item = _window_losing(ds, hopper, 1)
+    w = ds[item]
     _, t = w.index
-    keep = hopper.present[_frames(t, 2)].all(axis=0)
-    future = hopper.positions[[t + 2 * STEP, t + 3 * STEP]][:, keep]
-    assert torch.equal(w.future, torch.from_numpy(future).permute(1, 0, 2))
-    assert torch.equal(w.target_pos, torch.from_numpy(hopper.positions[t + STEP][keep]))
-    assert w.pos_seq.shape[0] == int(keep.sum())
+    keep = hopper.present[_base_frames(t)].all(axis=0)
+    future = torch.from_numpy(hopper.positions[[t + 2 * STEP, t + 3 * STEP]][:, keep])
+    torch.testing.assert_close(w.future, future.permute(1, 0, 2), rtol=0, atol=0, equal_nan=True)
+    assert bool(torch.isnan(w.future).any())
+    same = plain[plain.index.index(w.index)]
+    assert torch.equal(w.pos_seq, same.pos_seq) and torch.equal(w.target_pos, same.target_pos)
 
 
-@pytest.mark.parametrize("unroll", [1, 2])
-def test_a_perfect_model_pushed_forward_sees_the_later_ground_truth(hopper, monkeypatch, unroll):
-    """With a model that predicts the true accelerations, the pushed batch is exactly the
-    ground-truth window ``unroll`` steps later: its inputs and its target."""
+def _perfect_model(hopper):
+    """A small simulator that predicts LIGGGHTS's accelerations (and sends a particle that the
+    ground truth loses a metre down, so that it leaves through the outflow there too)."""
     sim = instantiate(compose("train", ["model.latent=16"]).model)
     dt = STEP * hopper.frame_dt
     sim.dt.fill_(dt)
-    ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=2)
-    window = ds[len(ds) // 2]
-    _, t = window.index
-    keep = hopper.present[_frames(t, 2)].all(axis=0)
-    positions = torch.from_numpy(hopper.positions[:, keep]).double()
+    positions = torch.from_numpy(hopper.positions).double()
 
     def true_acceleration(pos_seq, walls, time, neighbours=None, ids=None):
         frame = round((time - float(hopper.times[0])) / hopper.frame_dt)
         last, prev = pos_seq[:, -1].double(), pos_seq[:, -2].double()
-        return ((positions[frame + STEP] - 2 * last + prev) / dt**2).float()
+        here = np.flatnonzero(hopper.present[frame])  # the particles, matched by position
+        _, nearest = cKDTree(hopper.positions[frame, here]).query(last.numpy())
+        nxt = positions[frame + STEP, here[nearest]]
+        gone = torch.isnan(nxt).any(dim=1)
+        nxt[gone] = last[gone] - torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+        return ((nxt - 2 * last + prev) / dt**2).float()
 
-    monkeypatch.setattr(sim, "predict_acceleration", true_acceleration)
+    sim.predict_acceleration = true_acceleration
+    return sim
+
+
+@pytest.mark.parametrize("unroll", [1, 2])
+def test_a_perfect_model_pushed_forward_sees_the_later_ground_truth(hopper, monkeypatch, unroll):
+    """With a model that predicts the true accelerations, the pushed batch is the ground truth
+    ``unroll`` steps later: the particles still there, their inputs, and their targets (NaN,
+    left out of the loss, for those the ground truth loses in the next step)."""
+    sim = _perfect_model(hopper)
+    ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=2)
+    window = ds[_window_losing(ds, hopper, unroll)]
+    _, t = window.index
+    keep = np.flatnonzero(hopper.present[_base_frames(t)].all(axis=0))
     monkeypatch.setattr("granular_pyg.training.module.random.randint", lambda a, b: unroll)
     module = SimulatorModule(sim, push_forward_steps=2, push_forward_prob=1.0)
     pushed = module._pushed_forward(_Collate(sim, 0.0, False, 0)([window]))
 
     later = t + unroll * STEP
-    seq = positions[np.arange(later - HISTORY * STEP, later + 1, STEP)].permute(1, 0, 2).float()
+    there = keep[hopper.present[later, keep]]
+    seq = torch.from_numpy(hopper.positions[later - HISTORY * STEP : later + 1 : STEP, there])
+    seq = seq.permute(1, 0, 2).contiguous()
     expected = sim.build_graph(seq, window.walls, float(hopper.times[later]))
-    expected_y = sim.target_acceleration(seq, positions[later + STEP].float())
+    target = torch.from_numpy(hopper.positions[later + STEP, there])
+    expected_y = sim.target_acceleration(seq, target)
+    assert pushed.x.shape == expected.x.shape
     assert torch.equal(pushed.edge_index, expected.edge_index)
     torch.testing.assert_close(pushed.x, expected.x, atol=1e-4, rtol=0)
-    torch.testing.assert_close(pushed.y, expected_y, atol=1e-3, rtol=0)
-    # and differs from the window's own, unpushed target: the later step is a different one
-    plain = _Collate(sim, 0.0, False, 0)([window])
-    assert not torch.allclose(pushed.y, plain.y, atol=1e-2)
+    torch.testing.assert_close(pushed.y, expected_y, atol=1e-3, rtol=0, equal_nan=True)
+    lost = torch.isnan(pushed.y).any(dim=1)
+    assert 0 < int(lost.sum()) < len(lost)  # some leave in the next step, most stay
+
+
+def test_the_loss_leaves_out_particles_without_a_target():
+    sim = instantiate(compose("train", ["model.latent=16"]).model)
+    module = SimulatorModule(sim)
+    pos = torch.rand(30, HISTORY + 1, 3, dtype=torch.float64) * 0.02
+    walls = WallSet(make_hopper())
+    graph = sim.build_graph(pos, walls, 0.0)
+    graph.y = torch.randn(30, 3)
+    full = module._loss(Batch.from_data_list([graph]))
+    graph.y[:10] = float("nan")
+    masked = module._loss(Batch.from_data_list([graph]))
+    pred = sim(Batch.from_data_list([graph]))
+    assert torch.isfinite(masked)
+    torch.testing.assert_close(masked, torch.mean((pred[10:] - graph.y[10:]) ** 2))
+    assert not torch.equal(full, masked)
+    graph.y[:] = float("nan")
+    assert float(module._loss(Batch.from_data_list([graph])).detach()) == 0.0
