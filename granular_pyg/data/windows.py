@@ -3,7 +3,10 @@
 A window at frame ``t`` with time-step multiple ``k`` holds the positions at frames
 ``t - H k, ..., t - k, t`` (so ``H`` velocities over steps of ``k`` frames) and the target at
 ``t + k``. Only particles present in all ``H + 2`` frames take part (particles that have left
-through the outflow are masked out); windows without any such particle are skipped.
+through the outflow are masked out); windows without any such particle are skipped. With
+``keep_leaving``, a particle present in the ``H + 1`` input frames that leaves before the target
+frame takes part too, with a NaN target (left out of the loss), as a rollout keeps it in the
+graph until it crosses the outflow.
 """
 
 from __future__ import annotations
@@ -79,6 +82,8 @@ class WindowDataset(Dataset):
             ``future [N, extra_steps, 3]`` at ``t + 2k, ...``, NaN for a particle that has
             left by then. They do not change which particles a window holds (those present
             in its ``H + 2`` frames), so the plain windows are the same with or without them.
+        keep_leaving: also hold the particles present in the ``H + 1`` input frames that
+            leave before the target (NaN target).
     """
 
     def __init__(
@@ -87,6 +92,7 @@ class WindowDataset(Dataset):
         history: int = 5,
         step: int = 1,
         extra_steps: int = 0,
+        keep_leaving: bool = False,
     ) -> None:
         if step < 1 or history < 1:
             raise InputError(f"step ({step}) and history ({history}) must be >= 1")
@@ -98,12 +104,13 @@ class WindowDataset(Dataset):
                 raise InputError("trajectories: a training trajectory needs its Scene (walls)")
         self.walls = [WallSet(traj.scene) for traj in self.trajs]
         self.history, self.step, self.extra_steps = int(history), int(step), int(extra_steps)
+        self.held_frames = self.history + (1 if keep_leaving else 2)  # frames a particle needs
         span_before, span_after = self.history * self.step, (1 + self.extra_steps) * self.step
         self.index: list[tuple[int, int]] = []
         for i, traj in enumerate(self.trajs):
             present = traj.present
             for t in range(span_before, traj.num_frames - span_after):
-                if present[self._frames(t)[: self.history + 2]].all(axis=0).any():
+                if present[self._frames(t)[: self.held_frames]].all(axis=0).any():
                     self.index.append((i, t))
         if not self.index:
             raise InputError(
@@ -131,7 +138,7 @@ class WindowDataset(Dataset):
         traj = self.trajs[i]
         frames = self._frames(t)
         h = self.history + 1
-        keep = traj.present[frames[: h + 1]].all(axis=0)
+        keep = traj.present[frames[: self.held_frames]].all(axis=0)
         window = torch.from_numpy(traj.positions[frames][:, keep]).permute(1, 0, 2)
         sample = Window(
             pos_seq=window[:, :h].contiguous(),

@@ -142,6 +142,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         push_forward_steps: extra future frames kept per window for push-forward training.
+        keep_leaving: training windows also hold the particles that leave before the target
+            (NaN target, left out of the loss), as a rollout keeps them until the outflow.
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
         seed: seed of the window order and of the noise.
     """
@@ -160,6 +162,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         push_forward_steps: int = 0,
+        keep_leaving: bool = False,
         trajectories: dict | None = None,
         seed: int = 0,
     ) -> None:
@@ -177,6 +180,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.correct_positions = noise_target == "position"
         self.train_samples, self.val_samples = train_samples_per_epoch, val_samples
         self.push_forward_steps = int(push_forward_steps)
+        self.keep_leaving = bool(keep_leaving)
         self.trajectories = trajectories
         self.seed = int(seed)
         self.sim: LearnedSimulator | None = None
@@ -191,7 +195,11 @@ class TrajectoryDataModule(L.LightningDataModule):
         if getattr(self, "train_set", None) is not None:
             return
         self.train_set = WindowDataset(
-            self._files("train"), self.history, self.step, extra_steps=self.push_forward_steps
+            self._files("train"),
+            self.history,
+            self.step,
+            extra_steps=self.push_forward_steps,
+            keep_leaving=self.keep_leaving,
         )
         self.val_set = WindowDataset(self._files("valid"), self.history, self.step)
         self.stats = compute_statistics(self.train_set.trajs, self.step, self.noise_std)

@@ -124,3 +124,45 @@ def test_the_loss_leaves_out_particles_without_a_target():
     assert not torch.equal(full, masked)
     graph.y[:] = float("nan")
     assert float(module._loss(Batch.from_data_list([graph])).detach()) == 0.0
+
+
+def test_keep_leaving_holds_the_leavers_with_a_nan_target(hopper):
+    """``keep_leaving``: a particle present in the input frames that leaves before the target
+    frame stays in the window (NaN target); the others are as in the plain window."""
+    plain = WindowDataset([hopper], HISTORY, STEP)
+    kept = WindowDataset([hopper], HISTORY, STEP, keep_leaving=True)
+    item = next(
+        i
+        for i, (_, t) in enumerate(kept.index)
+        if (hopper.present[_base_frames(t)[:-1]].all(axis=0) & ~hopper.present[t + STEP]).any()
+    )
+    w = kept[item]
+    _, t = w.index
+    inputs = hopper.present[_base_frames(t)[:-1]].all(axis=0)
+    assert w.pos_seq.shape[0] == int(inputs.sum())
+    leaving = torch.from_numpy(~hopper.present[t + STEP][inputs])
+    assert bool(leaving.any()) and bool(torch.isnan(w.target_pos[leaving]).all())
+    assert bool(torch.isfinite(w.pos_seq).all()) and bool(
+        torch.isfinite(w.target_pos[~leaving]).all()
+    )
+    same = plain[plain.index.index(w.index)]
+    torch.testing.assert_close(w.pos_seq[~leaving], same.pos_seq, rtol=0, atol=0)
+    assert len(kept) >= len(plain)
+
+
+def test_keep_leaving_trains_with_a_finite_loss(tmp_path):
+    from granular_pyg.train import train
+
+    cfg = compose(
+        "train",
+        [
+            "model.latent=16",
+            "data.batch_size=1",
+            "trainer.enable_progress_bar=false",
+            "data.keep_leaving=true",
+            "data.noise_std=1e-5",
+            "trainer.fast_dev_run=true",
+        ],
+    )
+    metrics = train(cfg, tmp_path)
+    assert torch.isfinite(torch.tensor(metrics["train/loss"]))
