@@ -25,10 +25,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from granular_pyg.data.windows import WindowDataset
 from granular_pyg.errors import InputError
 from granular_pyg.inference import load_simulator, time_step_multiple
 from granular_pyg.io import Trajectory, atomic_write, read_trajectory
-from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator
 
 __all__ = ["format_table", "one_step_bias"]
@@ -61,26 +61,21 @@ def one_step_bias(
         raise InputError(f"every: expected a positive stride, got {every}")
     pred_in = [[] for _ in bands]
     true_in = [[] for _ in bands]
-    history = sim.history
     for traj in trajectories:
-        if traj.scene is None:
-            raise InputError("trajectories: each needs its Scene (walls)")
         k = time_step_multiple(sim, traj.frame_dt)
-        walls = WallSet(traj.scene)
+        windows = WindowDataset([traj], sim.history, k)  # every frame's window; keep each k-th
         outlet_z = float(traj.scene.params.get("outlet_z", 0.0))
-        for t in range(history * k, traj.num_frames - k, every * k):
+        for item, (_, t) in enumerate(windows.index):
             if last_time is not None and traj.times[t] > last_time:
                 break
-            frames = np.arange(t - history * k, t + k + 1, k)
-            keep = traj.present[frames].all(axis=0)
-            if not keep.any():
+            if (t - sim.history * k) % (every * k):
                 continue
-            window = torch.from_numpy(traj.positions[frames][:, keep]).permute(1, 0, 2)
-            seq, target = window[:, : history + 1].contiguous(), window[:, history + 1]
+            window = windows[item]
+            seq = window.pos_seq
             with torch.no_grad():
-                pred = sim.predict_acceleration(seq, walls, float(traj.times[t]))[:, 2]
-                true = sim.target_acceleration(seq, target).double() * sim.acc_std.double()
-            true = (true + sim.acc_mean.double())[:, 2]
+                pred = sim.predict_acceleration(seq, window.walls, window.time)[:, 2]
+                true = sim.target_acceleration(seq, window.target_pos).double()
+            true = (true * sim.acc_std.double() + sim.acc_mean.double())[:, 2]
             z = seq[:, -1, 2].double().numpy() - outlet_z
             for b, (lo, hi) in enumerate(bands):
                 inside = (z >= lo) & (z < hi)
