@@ -34,6 +34,7 @@ from granular_pyg.errors import InputError, check_tensor
 from granular_pyg.transforms.radius_graph import (
     _SLACK_ULPS,
     _checked_radius,
+    _columns,
     _radius_graph,
     _split_keys,
     _sq_dist,
@@ -116,7 +117,7 @@ class NeighbourList:
             keep = self._sure.copy()
             shell = self._shell_pairs
             keep[self._shell] = _within(
-                coords, shell[1], shell[0], coords.dtype.type(self.radius**2)
+                _columns(coords), shell[1], shell[0], coords.dtype.type(self.radius**2)
             )
             return torch.from_numpy(pairs.compress(keep, axis=1))
         src, dst = self._pairs
@@ -137,7 +138,7 @@ class NeighbourList:
             return
         pairs = self._pairs.numpy()
         inner = max(self.radius - self.skin, 0.0)
-        ref = self._ref.double().numpy()  # float64: the exact reference distances
+        ref = _columns(self._ref.double().numpy())  # float64: the exact reference distances
         self._set_sure(_within(ref, pairs[1], pairs[0], np.float64(inner * inner)))
 
     def _set_sure(self, sure: np.ndarray) -> None:
