@@ -178,17 +178,23 @@ class LearnedSimulator(nn.Module):
                 fresh radius graph); None: a fresh radius graph.
             ids: ``[N]`` increasing ids of the present particles, for ``neighbours``.
 
+        The edges and the walls' closest points come from detached positions; the features
+        (velocities, displacements) keep ``pos_seq``'s gradient, if it has one.
+
         Returns:
             A Data with ``x [N + W, 3H + 8]``, ``edge_index [2, E]``, ``edge_attr [E, 4]``,
             ``is_wall [N + W]`` and ``num_real = N``, ready to batch.
         """
         check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS))
-        data = Data(pos=pos_seq[:, -1], walls=walls, time=float(time))
+        last = pos_seq[:, -1]
+        data = Data(pos=last.detach(), walls=walls, time=float(time))
         if neighbours is None:
             data = self.radius_graph(data)
         else:
             data.edge_index = neighbours(data.pos, ids)
         data = self.wall_nodes(data)
+        if last.requires_grad:  # unrolled training: the features keep the positions' gradient
+            data.pos = torch.cat([last.to(data.pos.dtype), data.pos[data.num_real :]])
         return self._features(data, pos_seq)
 
     def _features(self, data: Data, pos_seq: torch.Tensor) -> Data:

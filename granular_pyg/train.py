@@ -25,7 +25,11 @@ __all__ = ["train"]
 RESUME_KEYS = ("model", "data")
 
 #: Keys added after checkpoints were first written, with the behaviour those checkpoints had.
-ADDED_KEYS = {"data.noise_target": "velocity", "data.keep_leaving": False}
+ADDED_KEYS = {
+    "data.noise_target": "velocity",
+    "data.keep_leaving": False,
+    "data.unroll_steps": 0,
+}
 
 
 def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:

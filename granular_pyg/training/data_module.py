@@ -142,6 +142,8 @@ class TrajectoryDataModule(L.LightningDataModule):
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         push_forward_steps: extra future frames kept per window for push-forward training.
+        unroll_steps: steps of the unrolled loss; the windows keep ``unroll_steps - 1`` future
+            frames (the larger of the two counts is kept).
         keep_leaving: training windows also hold the particles that leave before the target
             (NaN target, left out of the loss), as a rollout keeps them until the outflow.
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -162,6 +164,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         push_forward_steps: int = 0,
+        unroll_steps: int = 0,
         keep_leaving: bool = False,
         trajectories: dict | None = None,
         seed: int = 0,
@@ -179,7 +182,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             )
         self.correct_positions = noise_target == "position"
         self.train_samples, self.val_samples = train_samples_per_epoch, val_samples
-        self.push_forward_steps = int(push_forward_steps)
+        self.extra_steps = max(int(push_forward_steps), int(unroll_steps) - 1, 0)
         self.keep_leaving = bool(keep_leaving)
         self.trajectories = trajectories
         self.seed = int(seed)
@@ -198,7 +201,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self._files("train"),
             self.history,
             self.step,
-            extra_steps=self.push_forward_steps,
+            extra_steps=self.extra_steps,
             keep_leaving=self.keep_leaving,
         )
         self.val_set = WindowDataset(self._files("valid"), self.history, self.step)

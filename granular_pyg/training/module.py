@@ -9,9 +9,21 @@ import numpy as np
 import torch
 from torch_geometric.data import Batch
 
+from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
 
 __all__ = ["SimulatorModule"]
+
+
+def _masked_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """MSE over the rows of ``target [N, 3]`` without NaN (a particle the ground truth has lost);
+    a zero that keeps the graph if every row is NaN."""
+    known = torch.isfinite(target).all(dim=1)
+    if not bool(known.all()):
+        if not bool(known.any()):
+            return pred.sum() * 0.0
+        pred, target = pred[known], target[known]
+    return torch.nn.functional.mse_loss(pred, target)
 
 
 class SimulatorModule(L.LightningModule):
@@ -25,6 +37,14 @@ class SimulatorModule(L.LightningModule):
     slightly wrong inputs. As in a rollout, particles the model moves below the outflow leave;
     the loss covers the particles still present in the ground truth one step on.
 
+    Unrolled training (backpropagation through time): with ``unroll_steps = m > 0``, a batch is,
+    with probability ``unroll_prob``, run ``m`` steps by the model from its clean windows, with
+    gradients through the run; the loss is the mean over the steps of the one-step loss against
+    the acceleration that would take the model's state to LIGGGHTS's next positions, i.e. of the
+    position error along the model's own run (scaled by ``1 / (dt^2 acc_std)``). Particles leave
+    through the outflow as in a rollout; the walls' closest points are not differentiated (the
+    gradient reaches them through the particles' own positions only).
+
     The RNG states (python, numpy, torch) are saved in checkpoints and restored on resume, so a
     resumed run continues exactly.
 
@@ -35,6 +55,9 @@ class SimulatorModule(L.LightningModule):
         decay_steps: optimiser steps per factor-10 decay.
         push_forward_steps: maximal push-forward unroll ``p`` (0: off).
         push_forward_prob: probability that a batch is pushed forward.
+        unroll_steps: steps ``m`` of the unrolled loss (0: off; the windows need ``m - 1``
+            future frames, which ``TrajectoryDataModule(unroll_steps=m)`` keeps).
+        unroll_prob: probability that a batch takes the unrolled loss.
     """
 
     def __init__(
@@ -45,24 +68,26 @@ class SimulatorModule(L.LightningModule):
         decay_steps: float = 1e5,
         push_forward_steps: int = 0,
         push_forward_prob: float = 0.0,
+        unroll_steps: int = 0,
+        unroll_prob: float = 0.0,
     ) -> None:
         super().__init__()
         self.sim = simulator
         self.lr, self.lr_final, self.decay_steps = float(lr), float(lr_final), float(decay_steps)
         self.push_forward_steps = int(push_forward_steps)
         self.push_forward_prob = float(push_forward_prob)
+        self.unroll_steps, self.unroll_prob = int(unroll_steps), float(unroll_prob)
+        if self.unroll_steps < 0 or not 0.0 <= self.unroll_prob <= 1.0:
+            raise InputError(
+                f"unroll_steps / unroll_prob: expected steps >= 0 and a probability in [0, 1], "
+                f"got {unroll_steps!r} / {unroll_prob!r}"
+            )
 
     def forward(self, batch: Batch) -> torch.Tensor:
         return self.sim(batch)
 
     def _loss(self, batch: Batch) -> torch.Tensor:
-        pred, target = self.sim(batch), batch.y
-        known = torch.isfinite(target).all(dim=1)  # NaN: left in the ground truth (push-forward)
-        if not bool(known.all()):
-            if not bool(known.any()):
-                return pred.sum() * 0.0
-            pred, target = pred[known], target[known]
-        return torch.nn.functional.mse_loss(pred, target)
+        return _masked_mse(self.sim(batch), batch.y)
 
     def _pushed_forward(self, batch: Batch) -> Batch:
         """Roll each window forward ``u`` model steps and rebuild its graph and target (NaN for
@@ -86,10 +111,45 @@ class SimulatorModule(L.LightningModule):
             graphs.append(graph)
         return Batch.from_data_list(graphs).to(self.device)
 
+    def _unrolled_loss(self, batch: Batch) -> torch.Tensor:
+        """Mean over ``unroll_steps`` steps of the model's own run from each clean window of the
+        normalised one-step loss, with gradients through the run (see the class docstring)."""
+        sim, dt, steps = self.sim, float(self.sim.dt), self.unroll_steps
+        acc_mean, acc_std = sim.acc_mean.double(), sim.acc_std.double()
+        losses = []
+        for w in batch.windows:
+            future = getattr(w, "future", w.target_pos[:, None, :0])
+            if future.shape[1] < steps - 1:
+                raise InputError(
+                    f"unroll_steps={steps} needs {steps - 1} future frames per window, the "
+                    f"windows hold {future.shape[1]}: build the data with "
+                    f"unroll_steps={steps} (the train config passes push_forward.unroll_steps)"
+                )
+            seq = w.pos_seq.to(self.device, torch.float64)
+            known = torch.cat([w.target_pos[:, None], future], 1).to(self.device, torch.float64)
+            for u in range(steps):
+                acc = sim.predict_acceleration(seq, w.walls, w.time + u * dt).double()
+                pred = (acc - acc_mean) / acc_std
+                losses.append(_masked_mse(pred, sim.target_acceleration(seq, known[:, u]).double()))
+                if u + 1 == steps:
+                    break
+                last_vel = sim.velocities(seq[:, -2:])[:, 0]
+                nxt = seq[:, -1] + dt * (last_vel + dt * acc)
+                held = nxt[:, 2] >= w.outflow_z if w.outflow_z is not None else None
+                seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
+                if held is not None:
+                    if not bool(held.any()):
+                        break  # every particle left through the outflow
+                    seq, known = seq[held], known[held]
+        return torch.stack(losses).mean().float()
+
     def training_step(self, batch: Batch, batch_idx: int) -> torch.Tensor:
-        if self.push_forward_steps and random.random() < self.push_forward_prob:
-            batch = self._pushed_forward(batch)
-        loss = self._loss(batch)
+        if self.unroll_steps and random.random() < self.unroll_prob:
+            loss = self._unrolled_loss(batch)
+        else:
+            if self.push_forward_steps and random.random() < self.push_forward_prob:
+                batch = self._pushed_forward(batch)
+            loss = self._loss(batch)
         self.log("train/loss", loss, prog_bar=True, batch_size=batch.num_graphs, sync_dist=True)
         return loss
 

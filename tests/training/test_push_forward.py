@@ -1,4 +1,5 @@
-"""Push-forward training: the windows' future frames, and the pushed batch's inputs and targets."""
+"""Training on the model's own states: the windows' future frames, push-forward's pushed batch,
+and the unrolled loss (gradients through the model's run)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from torch_geometric.data import Batch
 
 from granular_pyg.config import compose
 from granular_pyg.data.windows import WindowDataset
+from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet, make_hopper
@@ -106,6 +108,64 @@ def test_a_perfect_model_pushed_forward_sees_the_later_ground_truth(hopper, monk
     torch.testing.assert_close(pushed.y, expected_y, atol=1e-3, rtol=0, equal_nan=True)
     lost = torch.isnan(pushed.y).any(dim=1)
     assert 0 < int(lost.sum()) < len(lost)  # some leave in the next step, most stay
+
+
+@pytest.mark.parametrize("bias", [0.0, 0.3])
+def test_the_unrolled_loss_of_a_perfect_model_is_its_bias(hopper, bias):
+    """Over 3 steps of its own run, through a window where particles leave, a model that predicts
+    LIGGGHTS's accelerations plus ``bias`` m/s^2 downwards has at every step the one-step loss of
+    that bias: its run follows the ground truth, correcting what it drifted."""
+    sim = _perfect_model(hopper)
+    true_acceleration = sim.predict_acceleration
+    down = torch.tensor([0.0, 0.0, -bias])
+    sim.predict_acceleration = lambda *args, **kw: true_acceleration(*args, **kw) + down
+    ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=2)
+    window = ds[_window_losing(ds, hopper, 1)]
+    module = SimulatorModule(sim, unroll_steps=3, unroll_prob=1.0)
+    loss = module._unrolled_loss(_batch_of(sim, window))
+    expected = (bias / float(sim.acc_std[2])) ** 2 / 3
+    torch.testing.assert_close(
+        loss, torch.tensor(expected, dtype=torch.float32), atol=1e-6, rtol=1e-3
+    )
+
+
+def test_the_unrolled_loss_backpropagates_through_the_run(hopper, monkeypatch):
+    """The second step's inputs are the first step's outputs with their gradient; one step is
+    the plain one-step loss of the clean window."""
+    sim = instantiate(compose("train", ["model.latent=16"]).model)
+    sim.dt.fill_(STEP * hopper.frame_dt)
+    ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=1)
+    batch = _batch_of(sim, ds[_window_losing(ds, hopper, 1)])
+    one = SimulatorModule(sim, unroll_steps=1, unroll_prob=1.0)
+    torch.testing.assert_close(one._unrolled_loss(batch), one._loss(batch))
+
+    seen = []
+    build_graph = sim.build_graph
+    monkeypatch.setattr(
+        sim,
+        "build_graph",
+        lambda pos_seq, *a, **k: (
+            seen.append(pos_seq.requires_grad) or build_graph(pos_seq, *a, **k)
+        ),
+    )
+    loss = SimulatorModule(sim, unroll_steps=2, unroll_prob=1.0)._unrolled_loss(batch)
+    assert seen == [False, True]
+    loss.backward()
+    grads = [p.grad for p in sim.parameters() if p.grad is not None]
+    assert grads and all(bool(torch.isfinite(g).all()) for g in grads)
+    assert any(bool(g.abs().sum() > 0) for g in grads)
+
+
+def test_the_unrolled_loss_needs_the_future_frames(hopper):
+    sim = instantiate(compose("train", ["model.latent=16"]).model)
+    ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=1)
+    module = SimulatorModule(sim, unroll_steps=3, unroll_prob=1.0)
+    with pytest.raises(InputError, match="unroll_steps=3 needs 2 future frames"):
+        module._unrolled_loss(_batch_of(sim, ds[0]))
+
+
+def _batch_of(sim, window):
+    return _Collate(sim, 0.0, False, 0)([window])
 
 
 def test_the_loss_leaves_out_particles_without_a_target():

@@ -58,8 +58,9 @@ def test_every_config_group_composes(override):
     "overrides",
     [["model=v1"], ["model=v2"], ["model=v3"]]
     + [["model=v3", f"model/processor={p}"] for p in ("gns", "bgnn", "attention")]
-    + [["model=v3", "push_forward.push_forward_steps=2", "push_forward.push_forward_prob=1.0"]],
-    ids=["v1", "v2", "v3", "gns", "bgnn", "attention", "push_forward"],
+    + [["model=v3", "push_forward.push_forward_steps=2", "push_forward.push_forward_prob=1.0"]]
+    + [["model=v3", "push_forward.unroll_steps=2", "push_forward.unroll_prob=1.0"]],
+    ids=["v1", "v2", "v3", "gns", "bgnn", "attention", "push_forward", "unroll"],
 )
 def test_fast_dev_run_on_the_bundled_sample(tmp_path, overrides):
     metrics = train(compose("train", [*SMALL, *overrides, "trainer.fast_dev_run=true"]), tmp_path)
