@@ -62,6 +62,12 @@ def time_call(fn: Callable[[], object], repeats: int, warmup: int = 1) -> float:
     return statistics.median(times)
 
 
+def synchronize(device: str) -> None:
+    """Wait for the queued work of ``device`` (CUDA runs asynchronously), so timings are whole."""
+    if str(device).startswith("cuda"):
+        torch.cuda.synchronize()
+
+
 def machine_info() -> dict[str, object]:
     return {
         "platform": platform.platform(),

@@ -16,15 +16,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import torch
 
-from granular_pyg.bench.report import SuiteResult
+from granular_pyg.bench.report import SuiteResult, synchronize
 from granular_pyg.inference import load_simulator, rollout_trajectory
 from granular_pyg.io import read_trajectory
 from granular_pyg.samples import sample_files
-
-
-def _sync(device: str) -> None:
-    if device.startswith("cuda"):
-        torch.cuda.synchronize()
 
 
 def run(
@@ -44,10 +39,10 @@ def run(
             rollout_trajectory(sim, truth, steps=3, progress=False)  # warm-up
             times = []
             for _ in range(max(1, repeats)):
-                _sync(device)
+                synchronize(device)
                 start = time.perf_counter()
                 pred = rollout_trajectory(sim, truth, progress=False)
-                _sync(device)
+                synchronize(device)
                 times.append(time.perf_counter() - start)
         wall = sorted(times)[len(times) // 2]
         steps = pred.metadata["steps"]

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import math
 
+import pytest
+import torch
+
 from granular_pyg.bench.liggghts import run
 
 
@@ -20,3 +23,14 @@ def test_liggghts_suite_times_both_rollouts_and_judges_the_models_own():
     assert math.isclose(result.results["learned_speedup_over_serial"], speedup)
     assert result.results["discharge_rate_rel_error"] == own["discharge_rate_rel_error"]
     assert result.targets[0].name == "learned rollout speed / serial LIGGGHTS"
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_on_a_gpu_the_suite_judges_the_rollout_against_liggghts_on_all_cores():
+    result = run("pretrained:hopper", mpi_procs=(1, 2), threads=1, device="cuda")
+    mpi = result.rows[1]["wall_s_per_simulated_s"]
+    assert result.targets[-1].name.startswith("learned rollout on cuda / LIGGGHTS on all cores")
+    assert math.isclose(
+        result.results["learned_speedup_over_liggghts_all_cores"],
+        mpi / result.rows[-1]["wall_s_per_simulated_s"],
+    )
