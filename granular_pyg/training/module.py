@@ -42,8 +42,9 @@ class SimulatorModule(L.LightningModule):
     gradients through the run; the loss is the mean over the steps of the one-step loss against
     the acceleration that would take the model's state to LIGGGHTS's next positions, i.e. of the
     position error along the model's own run (scaled by ``1 / (dt^2 acc_std)``). Particles leave
-    through the outflow as in a rollout; the walls' closest points are not differentiated (the
-    gradient reaches them through the particles' own positions only).
+    through the outflow as in a rollout. The edges and the walls' closest points are not
+    differentiated: a wall edge's displacement carries the gradient of its particle's position
+    only.
 
     The RNG states (python, numpy, torch) are saved in checkpoints and restored on resume, so a
     resumed run continues exactly.
