@@ -99,7 +99,7 @@ class _Collate:
         self.correct_positions = correct_positions
 
     def __call__(self, windows: list[Window]) -> Batch:
-        graphs = []
+        graphs, inputs = [], []
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
             if self.noise_std > 0:
@@ -116,8 +116,10 @@ class _Collate:
                 graph = self.sim.build_graph(pos_seq, w.walls, w.time)
                 graph.y = self.sim.target_acceleration(pos_seq, target)
             graphs.append(graph)
+            inputs.append(pos_seq)
         batch = Batch.from_data_list(graphs)
-        batch.windows = windows  # raw windows, for push-forward training
+        batch.windows = windows  # raw windows, for push-forward and unrolled training
+        batch.noisy_pos_seqs = inputs  # the windows' inputs with this batch's noise
         return batch
 
 

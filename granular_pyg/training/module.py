@@ -59,6 +59,8 @@ class SimulatorModule(L.LightningModule):
         unroll_steps: steps ``m`` of the unrolled loss (0: off; the windows need ``m - 1``
             future frames, which ``TrajectoryDataModule(unroll_steps=m)`` keeps).
         unroll_prob: probability that a batch takes the unrolled loss.
+        unroll_noise: start the unrolled run from the batch's noisy inputs instead of the clean
+            window (the targets stay LIGGGHTS's positions, as with ``noise_target=position``).
     """
 
     def __init__(
@@ -71,6 +73,7 @@ class SimulatorModule(L.LightningModule):
         push_forward_prob: float = 0.0,
         unroll_steps: int = 0,
         unroll_prob: float = 0.0,
+        unroll_noise: bool = False,
     ) -> None:
         super().__init__()
         self.sim = simulator
@@ -78,6 +81,7 @@ class SimulatorModule(L.LightningModule):
         self.push_forward_steps = int(push_forward_steps)
         self.push_forward_prob = float(push_forward_prob)
         self.unroll_steps, self.unroll_prob = int(unroll_steps), float(unroll_prob)
+        self.unroll_noise = bool(unroll_noise)
         if self.unroll_steps < 0 or not 0.0 <= self.unroll_prob <= 1.0:
             raise InputError(
                 f"unroll_steps / unroll_prob: expected steps >= 0 and a probability in [0, 1], "
@@ -113,20 +117,22 @@ class SimulatorModule(L.LightningModule):
         return Batch.from_data_list(graphs).to(self.device)
 
     def _unrolled_loss(self, batch: Batch) -> torch.Tensor:
-        """Mean over ``unroll_steps`` steps of the model's own run from each clean window of the
-        normalised one-step loss, with gradients through the run (see the class docstring)."""
+        """Mean over ``unroll_steps`` steps of the model's own run from each window (clean, or
+        with ``unroll_noise`` the batch's noisy inputs) of the normalised one-step loss, with
+        gradients through the run (see the class docstring)."""
         sim, dt, steps = self.sim, float(self.sim.dt), self.unroll_steps
         acc_mean, acc_std = sim.acc_mean.double(), sim.acc_std.double()
         losses = []
-        for w in batch.windows:
-            future = getattr(w, "future", w.target_pos[:, None, :0])
+        starts = batch.noisy_pos_seqs if self.unroll_noise else [w.pos_seq for w in batch.windows]
+        for w, start in zip(batch.windows, starts, strict=True):
+            future = getattr(w, "future", w.target_pos[:, None][:, :0])  # [N, 0, 3] if none
             if future.shape[1] < steps - 1:
                 raise InputError(
                     f"unroll_steps={steps} needs {steps - 1} future frames per window, the "
                     f"windows hold {future.shape[1]}: build the data with "
                     f"unroll_steps={steps} (the train config passes push_forward.unroll_steps)"
                 )
-            seq = w.pos_seq.to(self.device, torch.float64)
+            seq = start.to(self.device, torch.float64)
             known = torch.cat([w.target_pos[:, None], future], 1).to(self.device, torch.float64)
             for u in range(steps):
                 acc = sim.predict_acceleration(seq, w.walls, w.time + u * dt).double()

@@ -156,6 +156,17 @@ def test_the_unrolled_loss_backpropagates_through_the_run(hopper, monkeypatch):
     assert any(bool(g.abs().sum() > 0) for g in grads)
 
 
+def test_one_unrolled_step_from_the_noisy_inputs_is_the_noisy_one_step_loss(hopper):
+    sim = instantiate(compose("train", ["model.latent=16"]).model)
+    sim.dt.fill_(STEP * hopper.frame_dt)
+    window = WindowDataset([hopper], HISTORY, STEP)[3]
+    batch = _Collate(sim, 1e-4, True, 0, correct_positions=True)([window])
+    noisy = SimulatorModule(sim, unroll_steps=1, unroll_prob=1.0, unroll_noise=True)
+    torch.testing.assert_close(noisy._unrolled_loss(batch), noisy._loss(batch))
+    clean = SimulatorModule(sim, unroll_steps=1, unroll_prob=1.0)
+    assert not torch.allclose(clean._unrolled_loss(batch), noisy._loss(batch))
+
+
 def test_the_unrolled_loss_needs_the_future_frames(hopper):
     sim = instantiate(compose("train", ["model.latent=16"]).model)
     ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=1)
