@@ -150,6 +150,13 @@ class LearnedSimulator(nn.Module):
         """``[N, H, 3]`` finite-difference velocities (m/s, float64) of ``pos_seq [N, H+1, 3]``."""
         return torch.diff(pos_seq.double(), dim=1) / self.dt
 
+    def integrate(self, pos_seq: torch.Tensor, acc: torch.Tensor) -> torch.Tensor:
+        """Next positions ``[N, 3]`` (m, float64) after one step ``dt`` of semi-implicit Euler
+        from ``pos_seq [N, H + 1, 3]`` (m) with accelerations ``acc [N, 3]`` (m/s^2); the
+        inverse of :meth:`target_acceleration` (before its normalisation). Differentiable."""
+        next_vel = self.velocities(pos_seq[:, -2:])[:, 0] + self.dt * acc.double()
+        return pos_seq[:, -1].double() + self.dt * next_vel
+
     def target_acceleration(self, pos_seq: torch.Tensor, target_pos: torch.Tensor) -> torch.Tensor:
         """Normalised acceleration ``[N, 3]`` that takes the last state to ``target_pos``."""
         last_vel = self.velocities(pos_seq[:, -2:])[:, 0]
@@ -297,9 +304,7 @@ class LearnedSimulator(nn.Module):
                 "with dtype=float64",
                 bad,
             )
-        last_vel = self.velocities(seq[:, -2:])[:, 0]
-        next_vel = last_vel + self.dt * acc
-        nxt = seq[:, -1].double() + self.dt * next_vel
+        nxt = self.integrate(seq, acc)
         if guard is not None:
             if guard.margin.shape != present.shape:
                 raise InputError(

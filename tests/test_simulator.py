@@ -167,6 +167,19 @@ def test_semi_implicit_euler_and_masking_and_outflow(hopper):
     assert torch.isnan(gone[:, 2]).sum() >= seq.shape[0] // 2
 
 
+def test_integrate_is_the_inverse_of_target_acceleration_and_carries_gradients(hopper):
+    _, seq, _, _ = hopper
+    sim = _model()
+    seq64 = seq.double().clone().requires_grad_(True)
+    acc = torch.randn(seq.shape[0], 3, dtype=torch.float64) * 5.0
+    nxt = sim.integrate(seq64, acc)
+    back = sim.target_acceleration(seq64, nxt).double() * sim.acc_std.double() + sim.acc_mean
+    torch.testing.assert_close(back, acc, rtol=1e-5, atol=1e-5)
+    nxt[:, 2].sum().backward()
+    assert torch.equal(seq64.grad[:, -1, 2], torch.full((seq.shape[0],), 2.0, dtype=torch.float64))
+    assert torch.equal(seq64.grad[:, -2, 2], torch.full((seq.shape[0],), -1.0, dtype=torch.float64))
+
+
 def test_normalization_statistics_are_saved_with_the_module(tmp_path):
     sim = _model()
     torch.save(sim.state_dict(), tmp_path / "sim.pt")

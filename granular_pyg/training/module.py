@@ -140,8 +140,7 @@ class SimulatorModule(L.LightningModule):
                 losses.append(_masked_mse(pred, sim.target_acceleration(seq, known[:, u]).double()))
                 if u + 1 == steps:
                     break
-                last_vel = sim.velocities(seq[:, -2:])[:, 0]
-                nxt = seq[:, -1] + dt * (last_vel + dt * acc)
+                nxt = sim.integrate(seq, acc)
                 held = nxt[:, 2] >= w.outflow_z if w.outflow_z is not None else None
                 seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
                 if held is not None:

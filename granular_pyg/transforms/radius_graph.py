@@ -95,7 +95,8 @@ def _sq_dist(pos: torch.Tensor, target: torch.Tensor, source: torch.Tensor) -> t
 
 def _columns(coords: np.ndarray) -> np.ndarray:
     """``[3, N]`` C-contiguous coordinate columns of ``[N, 3]`` ``coords``: gathers from a
-    column are 4-5x faster than from rows, and reductions over it 5x faster than over axis 0."""
+    column are 4-5x faster than from rows, and min/max over the columns, copy included, 16x
+    faster than over axis 0 of the rows (2k points)."""
     return np.ascontiguousarray(coords.T)
 
 
