@@ -29,6 +29,9 @@ ADDED_KEYS = {
     "data.noise_target": "velocity",
     "data.keep_leaving": False,
     "data.unroll_steps": 0,
+    "data.wall_press": 0.0,
+    "data.wall_press_reach": 0.0,
+    "data.wall_press_fraction": 0.5,
 }
 
 

@@ -14,7 +14,7 @@ from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
-from granular_pyg.transforms import AddRandomWalkNoise
+from granular_pyg.transforms import AddRandomWalkNoise, PressIntoWalls
 
 __all__ = ["EpochSampler", "ResumableLoader", "TrajectoryDataModule"]
 
@@ -84,7 +84,8 @@ class _Collate:
 
     Noise (training only) and features come from the simulator's own ``build_graph`` and
     ``target_acceleration``, the one place features are built. The noise of a window is seeded
-    by ``(seed, epoch, window)``, so it does not depend on workers or on resuming.
+    by ``(seed, epoch, window)``, so it does not depend on workers or on resuming, and so
+    are the wall presses (``press``: depth, reach and fraction of :class:`PressIntoWalls`).
     """
 
     def __init__(
@@ -94,9 +95,10 @@ class _Collate:
         resample: bool,
         seed: int,
         correct_positions: bool = False,
+        press: tuple[float, float, float] | None = None,
     ):
         self.sim, self.noise_std, self.resample, self.seed = sim, noise_std, resample, seed
-        self.correct_positions = correct_positions
+        self.correct_positions, self.press = correct_positions, press
 
     def __call__(self, windows: list[Window]) -> Batch:
         graphs, inputs = [], []
@@ -112,6 +114,10 @@ class _Collate:
                 )
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
+            if self.press is not None:
+                key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}/press".encode())
+                press = PressIntoWalls(*self.press, generator=torch.Generator().manual_seed(key))
+                pos_seq = press(Data(pos_seq=pos_seq, walls=w.walls, time=w.time)).pos_seq
             with torch.no_grad():
                 graph = self.sim.build_graph(pos_seq, w.walls, w.time)
                 graph.y = self.sim.target_acceleration(pos_seq, target)
@@ -141,6 +147,10 @@ class TrajectoryDataModule(L.LightningDataModule):
         noise_target: ``"velocity"`` (GNS: the target keeps the last position's noise, the
             model learns to correct velocities) or ``"position"`` (the clean target: the model
             also learns to undo position noise, i.e. to push pressed particles apart).
+        wall_press: training inputs pressed into the walls up to this depth (m), the target
+            kept (:class:`~granular_pyg.transforms.PressIntoWalls`); 0: off.
+        wall_press_reach: particles closer than this to a wall may be pressed (m).
+        wall_press_fraction: probability that such a particle is pressed.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         push_forward_steps: extra future frames kept per window for push-forward training.
@@ -163,6 +173,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         noise_std: float = 0.0,
         resample_noise_at_walls: bool = True,
         noise_target: str = "velocity",
+        wall_press: float = 0.0,
+        wall_press_reach: float = 0.0,
+        wall_press_fraction: float = 0.5,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         push_forward_steps: int = 0,
@@ -183,6 +196,10 @@ class TrajectoryDataModule(L.LightningDataModule):
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
             )
         self.correct_positions = noise_target == "position"
+        self.press = None
+        if wall_press > 0:  # checked here, before any data is read
+            PressIntoWalls(wall_press, wall_press_reach, wall_press_fraction)
+            self.press = (float(wall_press), float(wall_press_reach), float(wall_press_fraction))
         self.train_samples, self.val_samples = train_samples_per_epoch, val_samples
         self.extra_steps = max(int(push_forward_steps), int(unroll_steps) - 1, 0)
         self.keep_leaving = bool(keep_leaving)
@@ -225,10 +242,12 @@ class TrajectoryDataModule(L.LightningDataModule):
         sim.dt.fill_(self.dt)
         self.sim = sim
 
-    def _loader(self, dataset, num_samples, shuffle: bool, noise: float, **kwargs) -> DataLoader:
+    def _loader(
+        self, dataset, num_samples, shuffle: bool, noise: float, press=None, **kwargs
+    ) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
-        collate = _Collate(self.sim, noise, self.resample, self.seed, self.correct_positions)
+        collate = _Collate(self.sim, noise, self.resample, self.seed, self.correct_positions, press)
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,
@@ -251,6 +270,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.train_samples,
             True,
             self.noise_std,
+            self.press,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

@@ -1,0 +1,97 @@
+"""Training states pressed into the walls: teaches the model to push particles back out."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch_geometric.data import Data
+from torch_geometric.transforms import BaseTransform
+
+from granular_pyg.errors import InputError
+
+__all__ = ["PressIntoWalls"]
+
+#: Largest fraction of its distance to the wall plane that a centre is pressed: it stays on
+#: the container's side (beyond the plane the wall node's features would point the other way).
+MAX_PRESS_FRACTION = 0.9
+
+
+class PressIntoWalls(BaseTransform):
+    """Moves particles near a wall towards it, keeping the target where it was.
+
+    A learned rollout's particles creep into the walls over several steps until their centres
+    pass a triangle's plane, where the wall node's displacement flips and the model pushes them
+    on through (measured on the hopper's leaks). LIGGGHTS never shows such overlaps, so the
+    model never learns to undo them. Here a particle whose centre is within ``reach`` of a
+    wall triangle is, with probability ``fraction``, moved with its whole history (velocities
+    unchanged) a distance ``U(0, 1) * min(depth, 0.9 * d)`` towards the closest point of its
+    nearest triangle (``d``: its distance to it); the target stays LIGGGHTS's next position,
+    so the one-step target pushes it back out.
+
+    Expects ``data.pos_seq [N, H + 1, 3]`` (m), ``data.walls`` (a WallSet) and ``data.time``
+    (s, the walls' pose); updates ``data.pos_seq`` and sets ``data.pressed [N]`` (m, the
+    distance each particle was moved).
+
+    Args:
+        depth: the largest press (m), > 0.
+        reach: particles whose centre is closer than this to a wall are candidates (m), > 0;
+            about the particle radius plus ``depth``.
+        fraction: probability that a candidate is pressed, in (0, 1].
+        generator: optional ``torch.Generator`` for reproducible presses.
+    """
+
+    def __init__(
+        self,
+        depth: float,
+        reach: float,
+        fraction: float = 0.5,
+        generator: torch.Generator | None = None,
+    ) -> None:
+        for name, value in (("depth", depth), ("reach", reach)):
+            if not (value > 0 and math.isfinite(value)):
+                raise InputError(f"{name}: expected a positive distance (m), got {value!r}")
+        if not 0 < fraction <= 1:
+            raise InputError(f"fraction: expected a probability in (0, 1], got {fraction!r}")
+        self.depth, self.reach, self.fraction = float(depth), float(reach), float(fraction)
+        self.generator = generator
+
+    def __repr__(self) -> str:
+        name = type(self).__name__
+        return f"{name}(depth={self.depth}, reach={self.reach}, fraction={self.fraction})"
+
+    def forward(self, data: Data) -> Data:
+        seq = data.pos_seq
+        num = seq.shape[0]
+        pressed = seq.new_zeros(num)
+        near = data.walls.contacts(seq[:, -1], self.reach, float(data.time))
+        if near.point_idx.numel():
+            offset = near.closest.to(seq.dtype) - seq[near.point_idx, -1]
+            dist = torch.linalg.vector_norm(offset, dim=1)
+            # The nearest triangle of each particle (ties: any); coincident points are skipped.
+            best = torch.full((num,), math.inf, dtype=dist.dtype)
+            best = best.scatter_reduce(0, near.point_idx, dist, "amin")
+            rows = (dist == best[near.point_idx]) & (dist > 0)
+            idx, offset, dist = near.point_idx[rows], offset[rows], dist[rows]
+            idx, first = _first_per_particle(idx)
+            offset, dist = offset[first], dist[first]
+            draw = torch.rand((2, idx.numel()), generator=self.generator, dtype=seq.dtype)
+            chosen = draw[0] < self.fraction
+            amount = draw[1] * torch.clamp(dist * MAX_PRESS_FRACTION, max=self.depth)
+            amount = torch.where(chosen, amount, torch.zeros_like(amount))
+            shift = offset / dist.unsqueeze(1) * amount.unsqueeze(1)
+            seq = seq.clone()
+            seq[idx] += shift.unsqueeze(1)
+            pressed[idx] = amount
+        data.pos_seq = seq
+        data.pos = seq[:, -1]
+        data.pressed = pressed
+        return data
+
+
+def _first_per_particle(idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Unique particle indices of ``idx [K]`` and the position of each one's first row."""
+    unique, inverse = torch.unique(idx, return_inverse=True)
+    first = torch.full((unique.numel(),), idx.numel(), dtype=torch.long)
+    first = first.scatter_reduce(0, inverse, torch.arange(idx.numel()), "amin")
+    return unique, first
