@@ -32,6 +32,7 @@ ADDED_KEYS = {
     "data.wall_press": 0.0,
     "data.wall_press_reach": 0.0,
     "data.wall_press_fraction": 0.5,
+    "data.wall_press_approach": 0.0,
 }
 
 

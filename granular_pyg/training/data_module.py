@@ -85,7 +85,8 @@ class _Collate:
     Noise (training only) and features come from the simulator's own ``build_graph`` and
     ``target_acceleration``, the one place features are built. The noise of a window is seeded
     by ``(seed, epoch, window)``, so it does not depend on workers or on resuming, and so
-    are the wall presses (``press``: depth, reach and fraction of :class:`PressIntoWalls`).
+    are the wall presses (``press``: depth, reach, fraction and approach of
+    :class:`PressIntoWalls`).
     """
 
     def __init__(
@@ -95,7 +96,7 @@ class _Collate:
         resample: bool,
         seed: int,
         correct_positions: bool = False,
-        press: tuple[float, float, float] | None = None,
+        press: tuple[float, float, float, float] | None = None,
     ):
         self.sim, self.noise_std, self.resample, self.seed = sim, noise_std, resample, seed
         self.correct_positions, self.press = correct_positions, press
@@ -151,6 +152,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             kept (:class:`~granular_pyg.transforms.PressIntoWalls`); 0: off.
         wall_press_reach: particles closer than this to a wall may be pressed (m).
         wall_press_fraction: probability that such a particle is pressed.
+        wall_press_approach: and given a velocity into the wall of up to this (m per frame).
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         push_forward_steps: extra future frames kept per window for push-forward training.
@@ -176,6 +178,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         wall_press: float = 0.0,
         wall_press_reach: float = 0.0,
         wall_press_fraction: float = 0.5,
+        wall_press_approach: float = 0.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         push_forward_steps: int = 0,
@@ -198,8 +201,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.correct_positions = noise_target == "position"
         self.press = None
         if wall_press > 0:  # checked here, before any data is read
-            PressIntoWalls(wall_press, wall_press_reach, wall_press_fraction)
-            self.press = (float(wall_press), float(wall_press_reach), float(wall_press_fraction))
+            settings = (wall_press, wall_press_reach, wall_press_fraction, wall_press_approach)
+            PressIntoWalls(*settings)
+            self.press = tuple(float(x) for x in settings)
         self.train_samples, self.val_samples = train_samples_per_epoch, val_samples
         self.extra_steps = max(int(push_forward_steps), int(unroll_steps) - 1, 0)
         self.keep_leaving = bool(keep_leaving)

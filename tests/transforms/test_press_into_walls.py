@@ -29,8 +29,9 @@ def _history(heights: list[float], steps: int = 5) -> torch.Tensor:
     return torch.stack([torch.full_like(z, 0.1), torch.full_like(z, 0.1), z], dim=2)
 
 
-def _press(seq, walls, depth=5e-4, reach=2e-3, fraction=1.0, seed=0, time=0.0):
-    press = PressIntoWalls(depth, reach, fraction, torch.Generator().manual_seed(seed))
+def _press(seq, walls, depth=5e-4, reach=2e-3, fraction=1.0, seed=0, time=0.0, approach=0.0):
+    generator = torch.Generator().manual_seed(seed)
+    press = PressIntoWalls(depth, reach, fraction, approach, generator)
     return press(Data(pos_seq=seq.clone(), walls=walls, time=time))
 
 
@@ -53,6 +54,20 @@ def test_a_press_stops_short_of_the_plane():
     data = _press(seq, WallSet([FLOOR]), depth=1e-3)
     assert float(data.pressed.max()) <= MAX_PRESS_FRACTION * 1e-4 + 1e-12
     assert float(data.pos_seq[:, -1, 2].min()) > 0
+
+
+def test_an_approach_adds_a_velocity_into_the_wall_and_keeps_the_current_press():
+    """With ``approach``, frame j moves (H - j) * a further back from the floor: the particle
+    comes down a faster (per frame), and its current position is pressed as before."""
+    seq = _history([1e-3] * 300)
+    walls = WallSet([FLOOR])
+    plain = _press(seq, walls, seed=2)
+    data = _press(seq, walls, seed=2, approach=4e-4)
+    torch.testing.assert_close(data.pos_seq[:, -1], plain.pos_seq[:, -1])
+    velocity = torch.diff(data.pos_seq[..., 2], dim=1)  # m per frame, [N, H]
+    torch.testing.assert_close(velocity, torch.diff(seq[..., 2], dim=1) - data.approach[:, None])
+    assert float(data.approach.min()) > 0 and float(data.approach.max()) <= 4e-4
+    assert float(data.approach.mean()) == pytest.approx(2e-4, rel=0.1)
 
 
 def test_fraction_sets_how_many_candidates_are_pressed():
@@ -116,6 +131,7 @@ def test_drum_presses_move_towards_the_nearest_wall_and_stay_inside_brute_force(
         ({"depth": math.nan, "reach": 1e-3}, "depth"),
         ({"depth": 1e-3, "reach": -1.0}, "reach"),
         ({"depth": 1e-3, "reach": 1e-3, "fraction": 0.0}, "fraction"),
+        ({"depth": 1e-3, "reach": 1e-3, "approach": -1e-3}, "approach"),
     ],
 )
 def test_bad_settings_are_named(kwargs, match):
@@ -129,7 +145,7 @@ def test_the_data_module_checks_its_press_settings():
     with pytest.raises(InputError, match="reach"):
         TrajectoryDataModule(sample="hopper", wall_press=1e-3, wall_press_reach=0.0)
     module = TrajectoryDataModule(sample="hopper", wall_press=1e-3, wall_press_reach=2.5e-3)
-    assert module.press == (1e-3, 2.5e-3, 0.5)
+    assert module.press == (1e-3, 2.5e-3, 0.5, 0.0)
     assert TrajectoryDataModule(sample="hopper").press is None
 
 
