@@ -27,7 +27,8 @@ class SegmentCrossings(NamedTuple):
         normal: ``[K, 3]`` unit normal of the triangle, pointing to the side the segment starts
             on (zero for degenerate triangles and starts on the plane).
         start_distance: ``[K]`` distance of the start from the triangle's plane (m).
-        end_depth: ``[K]`` how far the end lies past the plane (m), ``>= 0`` where ``crosses``.
+        end_depth: ``[K]`` how far the end lies past the plane (m), ``>= -skin`` where
+            ``crosses``.
     """
 
     crosses: torch.Tensor
@@ -38,17 +39,24 @@ class SegmentCrossings(NamedTuple):
 
 
 def segment_triangle_crossings(
-    start: torch.Tensor, end: torch.Tensor, triangles: torch.Tensor
+    start: torch.Tensor,
+    end: torch.Tensor,
+    triangles: torch.Tensor,
+    skin: torch.Tensor | float = 0.0,
 ) -> SegmentCrossings:
     """Whether each segment ``start[k] -> end[k]`` crosses triangle ``triangles[k]``.
 
     A segment that starts exactly on the plane has no side and never crosses; degenerate
-    (zero-area) triangles are never crossed.
+    (zero-area) triangles are never crossed. With ``skin`` > 0 a segment that ends on its
+    start's side closer than ``skin`` to the plane, over the triangle, counts as crossing too
+    (at ``fraction`` 1, with a negative ``end_depth``): the wall guard's margin against
+    round-off.
 
     Args:
         start: ``[K, 3]`` segment starts (m).
         end: ``[K, 3]`` segment ends (m).
         triangles: ``[K, 3, 3]`` triangle vertices (m).
+        skin: ``[K]`` or a float >= 0 (m).
 
     Returns:
         :class:`SegmentCrossings`, in the dtype of ``start``.
@@ -64,9 +72,15 @@ def segment_triangle_crossings(
     b = ((end - v0) * unit).sum(1)  # signed distance of the end
     side = torch.sign(a)
     depth = -side * b  # > 0: the end lies past the plane
-    changes = proper & (a != 0) & (depth >= 0)
-    fraction = a / torch.where(changes, a - b, 1.0)
-    hit = start + fraction.unsqueeze(1) * (end - start)
+    through = depth >= 0
+    changes = proper & (a != 0) & (depth >= -torch.as_tensor(skin, dtype=depth.dtype))
+    fraction = torch.where(through, a / torch.where(changes & through, a - b, 1.0), 1.0)
+    # Where the segment passes the plane; a move that stops in the skin: its end's foot.
+    hit = torch.where(
+        through.unsqueeze(1),
+        start + fraction.unsqueeze(1) * (end - start),
+        end - b.unsqueeze(1) * unit,
+    )
     inside = _inside(hit - v0, e1, e2)
     crosses = changes & inside
     return SegmentCrossings(

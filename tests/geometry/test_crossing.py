@@ -45,6 +45,19 @@ def test_hand_cases(name, start, end, crosses):
     assert _cross(start, end).crosses.item() is crosses, name
 
 
+def test_a_move_that_stops_in_the_skin_crosses_at_its_end():
+    """With a skin, a move that ends on its start's side closer than the skin to the plane,
+    over the triangle, counts (the wall guard's margin against round-off)."""
+    start = torch.tensor([[0.2, 0.2, 1.0], [0.2, 0.2, 1.0], [0.9, 0.9, 1.0], [0.2, 0.2, 1.0]])
+    end = torch.tensor([[0.3, 0.2, 0.05], [0.3, 0.2, 0.2], [0.9, 0.9, 0.05], [0.2, 0.2, -1.0]])
+    hit = segment_triangle_crossings(start.double(), end.double(), TRI, skin=0.1)
+    assert hit.crosses.tolist() == [True, False, False, True]  # in, above, beside, through
+    assert hit.fraction[0].item() == 1.0 and hit.fraction[3].item() == 0.5
+    assert hit.end_depth[0].item() == pytest.approx(-0.05)
+    plain = segment_triangle_crossings(start.double(), end.double(), TRI)
+    assert plain.crosses.tolist() == [False, False, False, True]
+
+
 def test_degenerate_triangles_are_never_crossed():
     flat = torch.tensor(
         [[(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (2.0, 0.0, 0.0)], [(0.0, 0.0, 0.0)] * 3],

@@ -114,3 +114,39 @@ def test_the_guard_needs_a_positive_margin():
     p = torch.zeros((1, 3), dtype=torch.float64) + 0.01
     with pytest.raises(InputError, match="margin"):
         walls.contain(p, p, 0.0, 0.01, 0.0, CUTOFF)
+
+
+def test_a_centre_creeping_up_to_the_shell_stays_inside_for_good():
+    """The drum case that leaked: a particle riding the turning shell, each learned step
+    carrying it a little further out (here 70% of its gap, then a step through the shell),
+    in float32 as in a rollout. The guard keeps it 2 * GUARD_SKIN * margin or more inside, so
+    round-off never puts it on the plane (without the skin it was through after ~30 steps)."""
+    from granular_pyg.scenes.wall_set import GUARD_SKIN
+
+    scene = make_drum(omega=2.0)
+    walls = WallSet(scene)
+    rot, _ = scene.walls[0].motion.pose(0.0)
+    # On the middle of a facet's plane (the 48 facets' vertices lie on the circle), 0.15 mm in.
+    facet = scene.params["drum_radius"] * math.cos(math.pi / 48)
+    angle = 2 * math.pi * 10.5 / 48
+    mid = torch.tensor([[math.cos(angle), 0.004, math.sin(angle)]], dtype=torch.float64)
+    facet_frame_gap = facet - 1.5e-4
+    pos = (mid * torch.tensor([facet_frame_gap, 1.0, facet_frame_gap])).float() @ torch.from_numpy(
+        rot
+    ).float()
+    margin, dt = 0.002, 0.02
+    outward = torch.tensor([[math.cos(angle), 0.0, math.sin(angle)]])
+    gaps = []
+    for s in range(120):
+        t0, t1 = s * dt, (s + 1) * dt
+        rot0, _ = scene.walls[0].motion.pose(t0)
+        rot1, _ = scene.walls[0].motion.pose(t1)
+        carried = (pos.double() @ torch.from_numpy(rot0 @ rot1.T)).float()  # with the shell
+        direction = outward.double() @ torch.from_numpy(rot1.T)
+        gap = facet - float((carried.double() * direction).sum())
+        step = 0.7 * gap if s % 3 else gap + 1e-3  # creep, then through
+        end = (carried.double() + step * direction).float()
+        pos, _ = walls.contain(pos, end, t0, t1, margin, CUTOFF)
+        gaps.append(facet - float((pos.double() * direction).sum()))
+    assert min(gaps) >= 2 * GUARD_SKIN * margin * 0.999
+    assert not leaked_mask(pos.double().numpy()[None], scene, np.array([120 * dt]))[0].any()
