@@ -200,7 +200,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             )
         self.correct_positions = noise_target == "position"
         self.press = None
-        if wall_press > 0:  # checked here, before any data is read
+        if wall_press != 0:  # checked here, before any data is read
             settings = (wall_press, wall_press_reach, wall_press_fraction, wall_press_approach)
             PressIntoWalls(*settings)
             self.press = tuple(float(x) for x in settings)

@@ -144,6 +144,8 @@ def test_the_data_module_checks_its_press_settings():
 
     with pytest.raises(InputError, match="reach"):
         TrajectoryDataModule(sample="hopper", wall_press=1e-3, wall_press_reach=0.0)
+    with pytest.raises(InputError, match="depth"):
+        TrajectoryDataModule(sample="hopper", wall_press=-1e-3, wall_press_reach=2e-3)
     module = TrajectoryDataModule(sample="hopper", wall_press=1e-3, wall_press_reach=2.5e-3)
     assert module.press == (1e-3, 2.5e-3, 0.5, 0.0)
     assert TrajectoryDataModule(sample="hopper").press is None
