@@ -32,6 +32,7 @@ HEADLINE = {
     "angle_of_repose_truth_deg": "deg",
     "angle_of_repose_pred_deg": "deg",
     "angle_of_repose_error_deg": "deg",
+    "angle_of_repose_curve_error_deg": "deg",
     "leaked_particles": "",
     "crushed_particles": "",
 }

@@ -72,6 +72,22 @@ def test_a_perfect_drum_rollout_has_no_angle_error(drum):
     assert ev.observable[0] == "angle"
     assert 20 < ev.scalars["angle_of_repose_truth_deg"] < 45
     assert ev.scalars["angle_of_repose_error_deg"] == 0
+    assert ev.scalars["angle_of_repose_curve_error_deg"] == 0
+
+
+def test_a_drum_bed_swinging_about_the_right_median_shows_in_the_curve_error(drum):
+    """The prediction's second half is the truth's frames in reverse order: the same median
+    angle (error 0), but frame by frame the mean of |angle difference| (brute force here)."""
+    pred = _as_rollout(drum, frames=200)
+    half = len(pred.times) // 2
+    pred.positions = pred.positions.copy()
+    pred.positions[half:] = pred.positions[half:][::-1]
+    ev = evaluate_pair(drum, pred)
+    assert ev.scalars["angle_of_repose_error_deg"] == pytest.approx(0, abs=1e-9)
+    ang_t, ang_p = ev.series["angle_truth"][half:], ev.series["angle_pred"][half:]
+    expected = np.nanmean(np.abs(ang_p - ang_t))
+    assert ev.scalars["angle_of_repose_curve_error_deg"] == pytest.approx(expected)
+    assert expected > 0.5
 
 
 def test_evaluate_pair_rejects_a_foreign_prediction(hopper, drum):
