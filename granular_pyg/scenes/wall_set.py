@@ -118,9 +118,8 @@ class WallSet:
         inelastic, frictionless contact), but never closer than ``2 * GUARD_SKIN * margin``;
         a move that ends closer than ``GUARD_SKIN * margin`` counts as crossing (so round-off
         cannot carry a centre that rides a wall through it). The first crossing along the move
-        is corrected first;
-        up to :data:`CONTAIN_PASSES` passes resolve corners, after which a particle that still
-        crosses stays at ``start``.
+        is corrected first; up to :data:`CONTAIN_PASSES` passes resolve corners, after which a
+        particle that still crosses stays at ``start``.
 
         Args:
             start: ``[P, 3]`` positions at ``start_time`` (m, world frame).
