@@ -1,4 +1,5 @@
-"""Geometry core: point-triangle distances, wall normals, and the wall index (culling)."""
+"""Geometry core: point-triangle distances, wall normals, the wall index (culling), segment
+crossings and per-particle selection over pair lists."""
 
 from granular_pyg.geometry.closest_point import (
     closest_point_on_segments,
@@ -6,6 +7,7 @@ from granular_pyg.geometry.closest_point import (
     triangle_regions,
 )
 from granular_pyg.geometry.crossing import SegmentCrossings, segment_triangle_crossings
+from granular_pyg.geometry.grouping import argmin_per_group
 from granular_pyg.geometry.normals import canonical_normals, orientation_key, triangle_normals
 from granular_pyg.geometry.rigid import pose_about_axis, rotation_about_axis
 from granular_pyg.geometry.wall_index import WallIndex, WallPairs, dense_wall_pairs
@@ -14,6 +16,7 @@ __all__ = [
     "SegmentCrossings",
     "WallIndex",
     "WallPairs",
+    "argmin_per_group",
     "canonical_normals",
     "closest_point_on_segments",
     "closest_point_on_triangles",

@@ -8,7 +8,12 @@ import numpy as np
 import torch
 
 from granular_pyg.errors import InputError
-from granular_pyg.geometry import WallIndex, segment_triangle_crossings, triangle_normals
+from granular_pyg.geometry import (
+    WallIndex,
+    argmin_per_group,
+    segment_triangle_crossings,
+    triangle_normals,
+)
 from granular_pyg.scenes.scene import Scene, Wall
 
 __all__ = ["WallContacts", "WallSet"]
@@ -195,10 +200,5 @@ class WallSet:
         if not found:
             return None
         cand, frac, moved = (torch.cat(col) for col in zip(*found, strict=True))
-        first = torch.full((p1.shape[0],), torch.inf, dtype=torch.float64)
-        first = first.scatter_reduce(0, cand, frac, "amin")
-        keep = (frac == first[cand]).nonzero().squeeze(1)
-        rows, pick = torch.unique(cand[keep], return_inverse=True)
-        one = torch.full((rows.numel(),), keep.numel(), dtype=torch.long)
-        one = one.scatter_reduce(0, pick, torch.arange(keep.numel()), "amin")  # ties: the first
-        return rows, moved[keep[one]]
+        rows, first = argmin_per_group(frac, cand)  # each particle's first crossing
+        return rows, moved[first]

@@ -9,6 +9,7 @@ from torch_geometric.data import Data
 from torch_geometric.transforms import BaseTransform
 
 from granular_pyg.errors import InputError
+from granular_pyg.geometry import argmin_per_group
 
 __all__ = ["PressIntoWalls"]
 
@@ -82,13 +83,10 @@ class PressIntoWalls(BaseTransform):
         if near.point_idx.numel():
             offset = near.closest.to(seq.dtype) - seq[near.point_idx, -1]
             dist = torch.linalg.vector_norm(offset, dim=1)
-            # The nearest triangle of each particle (ties: any); coincident points are skipped.
-            best = torch.full((num,), math.inf, dtype=dist.dtype)
-            best = best.scatter_reduce(0, near.point_idx, dist, "amin")
-            rows = (dist == best[near.point_idx]) & (dist > 0)
-            idx, offset, dist = near.point_idx[rows], offset[rows], dist[rows]
-            idx, first = _first_per_particle(idx)
-            offset, dist = offset[first], dist[first]
+            # The nearest triangle of each particle; coincident points are skipped.
+            idx, nearest = argmin_per_group(dist, near.point_idx)
+            apart = dist[nearest] > 0
+            idx, offset, dist = idx[apart], offset[nearest[apart]], dist[nearest[apart]]
             draw = torch.rand((3, idx.numel()), generator=self.generator, dtype=seq.dtype)
             chosen = (draw[0] < self.fraction).to(seq.dtype)
             amount = chosen * draw[1] * torch.clamp(dist * MAX_PRESS_FRACTION, max=self.depth)
@@ -102,11 +100,3 @@ class PressIntoWalls(BaseTransform):
         data.pos = seq[:, -1]
         data.pressed, data.approach = pressed, approach
         return data
-
-
-def _first_per_particle(idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Unique particle indices of ``idx [K]`` and the position of each one's first row."""
-    unique, inverse = torch.unique(idx, return_inverse=True)
-    first = torch.full((unique.numel(),), idx.numel(), dtype=torch.long)
-    first = first.scatter_reduce(0, inverse, torch.arange(idx.numel()), "amin")
-    return unique, first
