@@ -57,8 +57,8 @@ bench: setup
 # hopper and V3 on the drum (one torch thread each, two at a time), evaluation, the variant table.
 PAPER := outputs/paper
 paper: setup
-	$(PY) -m granular_pyg.generate +dataset=paper_hopper jobs=2
-	$(PY) -m granular_pyg.generate +dataset=paper_drum jobs=2
+	$(PY) -m granular_pyg.generate +dem_dataset=paper_hopper jobs=2
+	$(PY) -m granular_pyg.generate +dem_dataset=paper_drum jobs=2
 	@mkdir -p $(PAPER)
 	$(PY) -m granular_pyg.train +experiment=paper_drum model=v3 threads=1 trainer.max_epochs=48 \
 		hydra.run.dir=$(PAPER)/train/drum_v3 > $(PAPER)/train_drum_v3.log 2>&1 & \

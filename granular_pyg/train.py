@@ -18,38 +18,29 @@ from omegaconf import DictConfig, OmegaConf
 
 from granular_pyg.errors import InputError
 from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
+from granular_pyg.training.saved_config import migrate_config
 
 __all__ = ["train"]
 
 #: Config sections that must match between a checkpoint and the run that resumes it.
 RESUME_KEYS = ("model", "data")
 
-#: Keys added after checkpoints were first written, with the behaviour those checkpoints had.
-ADDED_KEYS = {
-    "data.noise_target": "velocity",
-    "data.keep_leaving": False,
-    "data.unroll_steps": 0,
-    "data.wall_press": 0.0,
-    "data.wall_press_reach": 0.0,
-    "data.wall_press_fraction": 0.5,
-    "data.wall_press_approach": 0.0,
-}
-
 
 def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
     path = Path(ckpt_path)
     if not path.is_file():
         raise InputError(f"ckpt_path: no checkpoint at {path}")
-    saved = torch.load(path, map_location="cpu", weights_only=False).get("config")
+    try:
+        saved = torch.load(path, map_location="cpu", weights_only=False).get("config")
+    except Exception as exc:  # torch raises several types for corrupt files
+        raise InputError(f"ckpt_path: {path} is not a readable checkpoint ({exc})") from exc
     if saved is None:
         return
+    saved = migrate_config(saved)
     now = OmegaConf.to_container(cfg, resolve=True)
     differ = []
     for section in RESUME_KEYS:
         old, new = _flatten(saved.get(section, {})), _flatten(now.get(section, {}))
-        old = {
-            k[len(section) + 1 :]: v for k, v in ADDED_KEYS.items() if k.startswith(f"{section}.")
-        } | old
         differ += [
             f"{section}.{k}: {old.get(k)!r} -> {new.get(k)!r}"
             for k in sorted(set(old) | set(new))
@@ -93,9 +84,10 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     L.seed_everything(cfg.seed, workers=True)
     torch.set_num_threads(cfg.threads)
     sim = instantiate(cfg.model)
+    objective = instantiate(cfg.objective)
     datamodule = instantiate(cfg.data)
-    datamodule.attach(sim)
-    module = SimulatorModule(sim, **cfg.optim, **cfg.push_forward)
+    datamodule.attach(sim, objective)
+    module = SimulatorModule(sim, objective, **cfg.optim, seed=cfg.seed)
     logger = instantiate(cfg.logger, save_dir=str(out)) if cfg.logger else False
     callbacks = [
         L.pytorch.callbacks.ModelCheckpoint(dirpath=out / "checkpoints", **cfg.checkpoint),

@@ -120,7 +120,7 @@ def test_stress_command_quick_mode_writes_its_report(tmp_path):
             [
                 "model.latent=16",
                 "data.batch_size=1",
-                "data.step=4",
+                "data.frames_per_step=4",
                 "trainer.enable_progress_bar=false",
                 "trainer.max_steps=1",
                 "data.train_samples_per_epoch=1",

@@ -77,25 +77,25 @@ class WindowDataset(Dataset):
     Args:
         trajectories: Trajectory objects or HDF5 paths.
         history: ``H`` past velocities.
-        step: time-step multiple ``k`` (frames per learned step).
-        extra_steps: further target frames kept after the window (push-forward training):
+        frames_per_step: time-step multiple ``k`` (saved frames per learned step).
+        extra_steps: further target frames kept after the window (push-forward and unrolled
+            training):
             ``future [N, extra_steps, 3]`` at ``t + 2k, ...``, NaN for a particle that has
             left by then. They do not change which particles a window holds (those present
             in its ``H + 2`` frames), so the plain windows are the same with or without them.
-        keep_leaving: also hold the particles present in the ``H + 1`` input frames that
-            leave before the target (NaN target).
     """
 
     def __init__(
         self,
         trajectories: list[Trajectory | str | Path],
         history: int = 5,
-        step: int = 1,
+        frames_per_step: int = 1,
         extra_steps: int = 0,
-        keep_leaving: bool = False,
     ) -> None:
-        if step < 1 or history < 1:
-            raise InputError(f"step ({step}) and history ({history}) must be >= 1")
+        if frames_per_step < 1 or history < 1:
+            raise InputError(
+                f"frames_per_step ({frames_per_step}) and history ({history}) must be >= 1"
+            )
         self.trajs = [t if isinstance(t, Trajectory) else read_trajectory(t) for t in trajectories]
         if not self.trajs:
             raise InputError("trajectories: the split is empty; give at least one trajectory")
@@ -103,19 +103,23 @@ class WindowDataset(Dataset):
             if traj.scene is None:
                 raise InputError("trajectories: a training trajectory needs its Scene (walls)")
         self.walls = [WallSet(traj.scene) for traj in self.trajs]
-        self.history, self.step, self.extra_steps = int(history), int(step), int(extra_steps)
-        self.held_frames = self.history + (1 if keep_leaving else 2)  # frames a particle needs
+        self.history, self.step, self.extra_steps = (
+            int(history),
+            int(frames_per_step),
+            int(extra_steps),
+        )
         span_before, span_after = self.history * self.step, (1 + self.extra_steps) * self.step
         self.index: list[tuple[int, int]] = []
         for i, traj in enumerate(self.trajs):
             present = traj.present
             for t in range(span_before, traj.num_frames - span_after):
-                if present[self._frames(t)[: self.held_frames]].all(axis=0).any():
+                if present[self._frames(t)[: self.history + 2]].all(axis=0).any():
                     self.index.append((i, t))
         if not self.index:
             raise InputError(
-                f"no window of {self.history + 2 + self.extra_steps} frames (step {self.step}) "
-                "has a particle present throughout: use longer trajectories or a smaller step"
+                f"no window of {self.history + 2 + self.extra_steps} frames ({self.step} frames "
+                "per step) has a particle present throughout: use longer trajectories or a "
+                "smaller frames_per_step"
             )
 
     def _frames(self, t: int) -> np.ndarray:
@@ -138,7 +142,7 @@ class WindowDataset(Dataset):
         traj = self.trajs[i]
         frames = self._frames(t)
         h = self.history + 1
-        keep = traj.present[frames[: self.held_frames]].all(axis=0)
+        keep = traj.present[frames[: self.history + 2]].all(axis=0)
         window = torch.from_numpy(traj.positions[frames][:, keep]).permute(1, 0, 2)
         sample = Window(
             pos_seq=window[:, :h].contiguous(),

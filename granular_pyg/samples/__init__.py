@@ -1,7 +1,7 @@
 """The bundled LIGGGHTS samples (package data): 4 hopper and 4 drum trajectories.
 
-Regenerate them with ``python -m granular_pyg.generate +dataset=sample_hopper`` and
-``+dataset=sample_drum`` (configs in ``conf/dataset/``).
+Regenerate them with ``python -m granular_pyg.generate +dem_dataset=sample_hopper`` and
+``+dem_dataset=sample_drum`` (configs in ``conf/dem_dataset/``).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ def sample_dir(scene: str) -> Path:
         known = sorted(p.name for p in SAMPLES_DIR.iterdir() if (p / "manifest.json").is_file())
         raise InputError(
             f"no bundled sample {scene!r} (have: {known}); regenerate it with "
-            f"`python -m granular_pyg.generate +dataset=sample_{scene}`"
+            f"`python -m granular_pyg.generate +dem_dataset=sample_{scene}`"
         )
     return folder
 

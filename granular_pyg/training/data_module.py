@@ -14,7 +14,8 @@ from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
-from granular_pyg.transforms import AddRandomWalkNoise, PressIntoWalls
+from granular_pyg.training.objectives import Objective
+from granular_pyg.transforms import AddRandomWalkNoise
 
 __all__ = ["EpochSampler", "ResumableLoader", "TrajectoryDataModule"]
 
@@ -82,86 +83,65 @@ class ResumableLoader(DataLoader):
 class _Collate:
     """Windows -> one Batch of graphs (runs in the loader's worker processes).
 
-    Noise (training only) and features come from the simulator's own ``build_graph`` and
-    ``target_acceleration``, the one place features are built. The noise of a window is seeded
-    by ``(seed, epoch, window)``, so it does not depend on workers or on resuming, and so
-    are the wall presses (``press``: depth, reach, fraction and approach of
-    :class:`PressIntoWalls`).
+    Noise (training only; resampled where it would cross a wall, as BGNN does) and features come
+    from the simulator's own ``build_graph`` and ``target_acceleration``, the one place features
+    are built. The noise of a window is seeded by ``(seed, epoch, window)``, so it does not
+    depend on workers or on resuming.
     """
 
     def __init__(
-        self,
-        sim: LearnedSimulator,
-        noise_std: float,
-        resample: bool,
-        seed: int,
-        correct_positions: bool = False,
-        press: tuple[float, float, float, float] | None = None,
+        self, sim: LearnedSimulator, noise_std: float, seed: int, correct_positions: bool = False
     ):
-        self.sim, self.noise_std, self.resample, self.seed = sim, noise_std, resample, seed
-        self.correct_positions, self.press = correct_positions, press
+        self.sim, self.noise_std, self.seed = sim, noise_std, seed
+        self.correct_positions = correct_positions
 
     def __call__(self, windows: list[Window]) -> Batch:
-        graphs, inputs = [], []
+        graphs = []
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
             if self.noise_std > 0:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
                     self.noise_std,
-                    self.resample,
+                    resample_at_walls=True,
                     generator=torch.Generator().manual_seed(key),
                     correct_positions=self.correct_positions,
                 )
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
-            if self.press is not None:
-                key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}/press".encode())
-                press = PressIntoWalls(*self.press, generator=torch.Generator().manual_seed(key))
-                pos_seq = press(Data(pos_seq=pos_seq, walls=w.walls, time=w.time)).pos_seq
             with torch.no_grad():
                 graph = self.sim.build_graph(pos_seq, w.walls, w.time)
                 graph.y = self.sim.target_acceleration(pos_seq, target)
             graphs.append(graph)
-            inputs.append(pos_seq)
         batch = Batch.from_data_list(graphs)
-        batch.windows = windows  # raw windows, for push-forward and unrolled training
-        batch.noisy_pos_seqs = inputs  # the windows' inputs with this batch's noise
+        batch.windows = windows  # raw windows, for objectives that run the model on
         return batch
 
 
 class TrajectoryDataModule(L.LightningDataModule):
-    """Windows of trajectories (H past velocities + target every ``step`` frames), split by
-    trajectory, with normalisation statistics from the training split.
+    """Windows of trajectories (H past velocities + target every ``frames_per_step`` frames),
+    split by trajectory, with normalisation statistics from the training split.
 
     Args:
         root: dataset folder with ``manifest.json`` (from ``python -m granular_pyg.generate``);
             None to use the bundled ``sample``.
         sample: ``"hopper"`` or ``"drum"`` (used when ``root`` is None).
         history: past velocities ``H`` (must match the model).
-        step: time-step multiple ``k``: one learned step spans ``k`` saved frames.
+        frames_per_step: time-step multiple ``k``: one learned step spans ``k`` saved frames.
         batch_size: windows per batch.
         num_workers: loader worker processes (0: build graphs in the main process).
-        noise_std: random-walk noise on the training inputs (m per step); the statistics'
-            stds are inflated by it.
-        resample_noise_at_walls: resample noise that would cross a wall (BGNN).
+        noise_std: random-walk noise on the training inputs (m per step), resampled where it
+            would cross a wall; the statistics' stds are inflated by it.
         noise_target: ``"velocity"`` (GNS: the target keeps the last position's noise, the
             model learns to correct velocities) or ``"position"`` (the clean target: the model
             also learns to undo position noise, i.e. to push pressed particles apart).
-        wall_press: training inputs pressed into the walls up to this depth (m), the target
-            kept (:class:`~granular_pyg.transforms.PressIntoWalls`); 0: off.
-        wall_press_reach: particles closer than this to a wall may be pressed (m).
-        wall_press_fraction: probability that such a particle is pressed.
-        wall_press_approach: and given a velocity into the wall of up to this (m per frame).
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
-        push_forward_steps: extra future frames kept per window for push-forward training.
-        unroll_steps: steps of the unrolled loss; the windows keep ``unroll_steps - 1`` future
-            frames (the larger of the two counts is kept).
-        keep_leaving: training windows also hold the particles that leave before the target
-            (NaN target, left out of the loss), as a rollout keeps them until the outflow.
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
         seed: seed of the window order and of the noise.
+
+    The training windows also hold the future frames that the objective given to
+    :meth:`attach` needs (``Objective.future_frames``).
     """
 
     def __init__(
@@ -169,21 +149,13 @@ class TrajectoryDataModule(L.LightningDataModule):
         root: str | None = None,
         sample: str | None = "hopper",
         history: int = 5,
-        step: int = 1,
+        frames_per_step: int = 1,
         batch_size: int = 2,
         num_workers: int = 0,
         noise_std: float = 0.0,
-        resample_noise_at_walls: bool = True,
         noise_target: str = "velocity",
-        wall_press: float = 0.0,
-        wall_press_reach: float = 0.0,
-        wall_press_fraction: float = 0.5,
-        wall_press_approach: float = 0.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
-        push_forward_steps: int = 0,
-        unroll_steps: int = 0,
-        keep_leaving: bool = False,
         trajectories: dict | None = None,
         seed: int = 0,
     ) -> None:
@@ -191,22 +163,20 @@ class TrajectoryDataModule(L.LightningDataModule):
         if root is None and sample is None:
             raise InputError("data: set data.root (a dataset folder) or data.sample")
         self.root, self.sample = root, sample
-        self.history, self.step = int(history), int(step)
+        self.history, self.step = int(history), int(frames_per_step)
         self.batch_size, self.num_workers = int(batch_size), int(num_workers)
-        self.noise_std, self.resample = float(noise_std), bool(resample_noise_at_walls)
+        if self.batch_size < 1:
+            raise InputError(
+                f"data.batch_size: expected >= 1 windows per batch, got {batch_size!r}"
+            )
+        self.noise_std = float(noise_std)
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
             )
         self.correct_positions = noise_target == "position"
-        self.press = None
-        if wall_press != 0:  # checked here, before any data is read
-            settings = (wall_press, wall_press_reach, wall_press_fraction, wall_press_approach)
-            PressIntoWalls(*settings)
-            self.press = tuple(float(x) for x in settings)
         self.train_samples, self.val_samples = train_samples_per_epoch, val_samples
-        self.extra_steps = max(int(push_forward_steps), int(unroll_steps) - 1, 0)
-        self.keep_leaving = bool(keep_leaving)
+        self.extra_steps = 0
         self.trajectories = trajectories
         self.seed = int(seed)
         self.sim: LearnedSimulator | None = None
@@ -221,11 +191,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         if getattr(self, "train_set", None) is not None:
             return
         self.train_set = WindowDataset(
-            self._files("train"),
-            self.history,
-            self.step,
-            extra_steps=self.extra_steps,
-            keep_leaving=self.keep_leaving,
+            self._files("train"), self.history, self.step, extra_steps=self.extra_steps
         )
         self.val_set = WindowDataset(self._files("valid"), self.history, self.step)
         self.stats = compute_statistics(self.train_set.trajs, self.step, self.noise_std)
@@ -235,8 +201,13 @@ class TrajectoryDataModule(L.LightningDataModule):
         """Time of one learned step (s): the frame spacing times ``step``."""
         return self.step * self.train_set.frame_dt
 
-    def attach(self, sim: LearnedSimulator) -> None:
-        """Give ``sim`` this data's statistics and step, and build graphs with it."""
+    def attach(self, sim: LearnedSimulator, objective: Objective | None = None) -> None:
+        """Give ``sim`` this data's statistics and step, and build graphs with it; the training
+        windows hold the future frames ``objective`` needs."""
+        needed = objective.future_frames if objective is not None else 0
+        if getattr(self, "train_set", None) is not None and needed > self.extra_steps:
+            self.train_set = None  # set up again with the future frames
+        self.extra_steps = max(self.extra_steps, needed)
         self.setup()
         if sim.history != self.history:
             raise InputError(f"model.history ({sim.history}) != data.history ({self.history})")
@@ -246,12 +217,10 @@ class TrajectoryDataModule(L.LightningDataModule):
         sim.dt.fill_(self.dt)
         self.sim = sim
 
-    def _loader(
-        self, dataset, num_samples, shuffle: bool, noise: float, press=None, **kwargs
-    ) -> DataLoader:
+    def _loader(self, dataset, num_samples, shuffle: bool, noise: float, **kwargs) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
-        collate = _Collate(self.sim, noise, self.resample, self.seed, self.correct_positions, press)
+        collate = _Collate(self.sim, noise, self.seed, self.correct_positions)
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,
@@ -274,7 +243,6 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.train_samples,
             True,
             self.noise_std,
-            self.press,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

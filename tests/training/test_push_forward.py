@@ -16,10 +16,11 @@ from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet, make_hopper
-from granular_pyg.training import SimulatorModule
 from granular_pyg.training.data_module import _Collate
+from granular_pyg.training.objectives import Mixture, OneStep, PushForward, Unrolled
 
 HISTORY, STEP = 5, 2
+GEN = torch.Generator().manual_seed(0)
 
 
 @pytest.fixture(scope="module")
@@ -91,9 +92,7 @@ def test_a_perfect_model_pushed_forward_sees_the_later_ground_truth(hopper, monk
     window = ds[_window_losing(ds, hopper, unroll)]
     _, t = window.index
     keep = np.flatnonzero(hopper.present[_base_frames(t)].all(axis=0))
-    monkeypatch.setattr("granular_pyg.training.module.random.randint", lambda a, b: unroll)
-    module = SimulatorModule(sim, push_forward_steps=2, push_forward_prob=1.0)
-    pushed = module._pushed_forward(_Collate(sim, 0.0, False, 0)([window]))
+    pushed = PushForward(max_steps=2).pushed(sim, _Collate(sim, 0.0, 0)([window]), unroll)
 
     later = t + unroll * STEP
     there = keep[hopper.present[later, keep]]
@@ -121,8 +120,7 @@ def test_the_unrolled_loss_of_a_perfect_model_is_its_bias(hopper, bias):
     sim.predict_acceleration = lambda *args, **kw: true_acceleration(*args, **kw) + down
     ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=2)
     window = ds[_window_losing(ds, hopper, 1)]
-    module = SimulatorModule(sim, unroll_steps=3, unroll_prob=1.0)
-    loss = module._unrolled_loss(_batch_of(sim, window))
+    loss = Unrolled(steps=3).loss(sim, _batch_of(sim, window), GEN)
     expected = (bias / float(sim.acc_std[2])) ** 2 / 3
     torch.testing.assert_close(
         loss, torch.tensor(expected, dtype=torch.float32), atol=1e-6, rtol=1e-3
@@ -136,8 +134,7 @@ def test_the_unrolled_loss_backpropagates_through_the_run(hopper, monkeypatch):
     sim.dt.fill_(STEP * hopper.frame_dt)
     ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=1)
     batch = _batch_of(sim, ds[_window_losing(ds, hopper, 1)])
-    one = SimulatorModule(sim, unroll_steps=1, unroll_prob=1.0)
-    torch.testing.assert_close(one._unrolled_loss(batch), one._loss(batch))
+    torch.testing.assert_close(Unrolled(1).loss(sim, batch, GEN), OneStep().loss(sim, batch, GEN))
 
     seen = []
     build_graph = sim.build_graph
@@ -148,7 +145,7 @@ def test_the_unrolled_loss_backpropagates_through_the_run(hopper, monkeypatch):
             seen.append(pos_seq.requires_grad) or build_graph(pos_seq, *a, **k)
         ),
     )
-    loss = SimulatorModule(sim, unroll_steps=2, unroll_prob=1.0)._unrolled_loss(batch)
+    loss = Unrolled(steps=2).loss(sim, batch, GEN)
     assert seen == [False, True]
     loss.backward()
     grads = [p.grad for p in sim.parameters() if p.grad is not None]
@@ -156,84 +153,48 @@ def test_the_unrolled_loss_backpropagates_through_the_run(hopper, monkeypatch):
     assert any(bool(g.abs().sum() > 0) for g in grads)
 
 
-def test_one_unrolled_step_from_the_noisy_inputs_is_the_noisy_one_step_loss(hopper):
-    sim = instantiate(compose("train", ["model.latent=16"]).model)
-    sim.dt.fill_(STEP * hopper.frame_dt)
-    window = WindowDataset([hopper], HISTORY, STEP)[3]
-    batch = _Collate(sim, 1e-4, True, 0, correct_positions=True)([window])
-    noisy = SimulatorModule(sim, unroll_steps=1, unroll_prob=1.0, unroll_noise=True)
-    torch.testing.assert_close(noisy._unrolled_loss(batch), noisy._loss(batch))
-    clean = SimulatorModule(sim, unroll_steps=1, unroll_prob=1.0)
-    assert not torch.allclose(clean._unrolled_loss(batch), noisy._loss(batch))
-
-
 def test_the_unrolled_loss_needs_the_future_frames(hopper):
     sim = instantiate(compose("train", ["model.latent=16"]).model)
     ds = WindowDataset([hopper], HISTORY, STEP, extra_steps=1)
-    module = SimulatorModule(sim, unroll_steps=3, unroll_prob=1.0)
-    with pytest.raises(InputError, match="unroll_steps=3 needs 2 future frames"):
-        module._unrolled_loss(_batch_of(sim, ds[0]))
+    with pytest.raises(InputError, match="steps=3 needs 2 future frames"):
+        Unrolled(steps=3).loss(sim, _batch_of(sim, ds[0]), GEN)
 
 
 def _batch_of(sim, window):
-    return _Collate(sim, 0.0, False, 0)([window])
+    return _Collate(sim, 0.0, 0)([window])
 
 
 def test_the_loss_leaves_out_particles_without_a_target():
     sim = instantiate(compose("train", ["model.latent=16"]).model)
-    module = SimulatorModule(sim)
     pos = torch.rand(30, HISTORY + 1, 3, dtype=torch.float64) * 0.02
     walls = WallSet(make_hopper())
     graph = sim.build_graph(pos, walls, 0.0)
     graph.y = torch.randn(30, 3)
-    full = module._loss(Batch.from_data_list([graph]))
+    full = OneStep().loss(sim, Batch.from_data_list([graph]), GEN)
     graph.y[:10] = float("nan")
-    masked = module._loss(Batch.from_data_list([graph]))
+    masked = OneStep().loss(sim, Batch.from_data_list([graph]), GEN)
     pred = sim(Batch.from_data_list([graph]))
     assert torch.isfinite(masked)
     torch.testing.assert_close(masked, torch.mean((pred[10:] - graph.y[10:]) ** 2))
     assert not torch.equal(full, masked)
     graph.y[:] = float("nan")
-    assert float(module._loss(Batch.from_data_list([graph])).detach()) == 0.0
+    assert float(OneStep().loss(sim, Batch.from_data_list([graph]), GEN).detach()) == 0.0
 
 
-def test_keep_leaving_holds_the_leavers_with_a_nan_target(hopper):
-    """``keep_leaving``: a particle present in the input frames that leaves before the target
-    frame stays in the window (NaN target); the others are as in the plain window."""
-    plain = WindowDataset([hopper], HISTORY, STEP)
-    kept = WindowDataset([hopper], HISTORY, STEP, keep_leaving=True)
-    item = next(
-        i
-        for i, (_, t) in enumerate(kept.index)
-        if (hopper.present[_base_frames(t)[:-1]].all(axis=0) & ~hopper.present[t + STEP]).any()
-    )
-    w = kept[item]
-    _, t = w.index
-    inputs = hopper.present[_base_frames(t)[:-1]].all(axis=0)
-    assert w.pos_seq.shape[0] == int(inputs.sum())
-    leaving = torch.from_numpy(~hopper.present[t + STEP][inputs])
-    assert bool(leaving.any()) and bool(torch.isnan(w.target_pos[leaving]).all())
-    assert bool(torch.isfinite(w.pos_seq).all()) and bool(
-        torch.isfinite(w.target_pos[~leaving]).all()
-    )
-    same = plain[plain.index.index(w.index)]
-    torch.testing.assert_close(w.pos_seq[~leaving], same.pos_seq, rtol=0, atol=0)
-    assert len(kept) >= len(plain)
+def test_the_mixture_gives_each_part_its_share_and_the_rest_one_step():
+    """Over many draws each part takes about its share of the batches, in order, and the rest
+    take the one-step loss; the same seed draws the same parts (exact resume)."""
+    mix = Mixture({"unrolled": Unrolled(4, 0.25), "push_forward": PushForward(3, 0.5)})
+    assert mix.future_frames == 3
+    g = torch.Generator().manual_seed(1)
+    picks = [type(mix.pick(g)).__name__ for _ in range(4000)]
+    for name, share in (("Unrolled", 0.25), ("PushForward", 0.5), ("OneStep", 0.25)):
+        assert abs(picks.count(name) / 4000 - share) < 0.03
+    again = torch.Generator().manual_seed(1)
+    assert [type(mix.pick(again)).__name__ for _ in range(50)] == picks[:50]
+    assert isinstance(Mixture({}).pick(g), OneStep)
 
 
-def test_keep_leaving_trains_with_a_finite_loss(tmp_path):
-    from granular_pyg.train import train
-
-    cfg = compose(
-        "train",
-        [
-            "model.latent=16",
-            "data.batch_size=1",
-            "trainer.enable_progress_bar=false",
-            "data.keep_leaving=true",
-            "data.noise_std=1e-5",
-            "trainer.fast_dev_run=true",
-        ],
-    )
-    metrics = train(cfg, tmp_path)
-    assert torch.isfinite(torch.tensor(metrics["train/loss"]))
+def test_shares_above_one_are_refused():
+    with pytest.raises(InputError, match="together at most 1"):
+        Mixture({"a": Unrolled(2, 0.7), "b": PushForward(2, 0.5)})

@@ -58,9 +58,10 @@ def test_every_config_group_composes(override):
     "overrides",
     [["model=v1"], ["model=v2"], ["model=v3"]]
     + [["model=v3", f"model/processor={p}"] for p in ("gns", "bgnn", "attention")]
-    + [["model=v3", "push_forward.push_forward_steps=2", "push_forward.push_forward_prob=1.0"]]
-    + [["model=v3", "push_forward.unroll_steps=2", "push_forward.unroll_prob=1.0"]],
-    ids=["v1", "v2", "v3", "gns", "bgnn", "attention", "push_forward", "unroll"],
+    + [["model=v3", "objective=push_forward", "objective.parts.push_forward.share=1.0"]]
+    + [["model=v3", "objective=unrolled", "objective.parts.unrolled.steps=2"]]
+    + [["model=v3", "objective=[unrolled,push_forward]"]],
+    ids=["v1", "v2", "v3", "gns", "bgnn", "attention", "push_forward", "unroll", "mixture"],
 )
 def test_fast_dev_run_on_the_bundled_sample(tmp_path, overrides):
     metrics = train(compose("train", [*SMALL, *overrides, "trainer.fast_dev_run=true"]), tmp_path)
@@ -112,12 +113,14 @@ def _train_losses(run: Path) -> dict[int, float]:
 
 
 @pytest.mark.slow
-def test_resume_gives_the_same_next_losses_as_an_uninterrupted_run(tmp_path):
-    train(_steps_cfg(6), tmp_path / "straight")
-    train(_steps_cfg(3), tmp_path / "first")
+@pytest.mark.parametrize("objective", ["one_step", "[unrolled,push_forward]"])
+def test_resume_gives_the_same_next_losses_as_an_uninterrupted_run(tmp_path, objective):
+    mix = f"objective={objective}"
+    train(_steps_cfg(6, mix), tmp_path / "straight")
+    train(_steps_cfg(3, mix), tmp_path / "first")
     ckpt = tmp_path / "first" / "checkpoints" / "last.ckpt"
     assert ckpt.is_file()
-    train(_steps_cfg(6, f"ckpt_path={ckpt}"), tmp_path / "resumed")
+    train(_steps_cfg(6, mix, f"ckpt_path={ckpt}"), tmp_path / "resumed")
     straight, resumed = _train_losses(tmp_path / "straight"), _train_losses(tmp_path / "resumed")
     later = [s for s in straight if s >= 3]
     assert later and all(s in resumed for s in later)
@@ -143,6 +146,41 @@ def test_a_checkpoint_from_before_noise_target_resumes_as_velocity(tmp_path):
     _check_resume(str(ckpt), _steps_cfg(2))  # the default, velocity: the old behaviour
     with pytest.raises(InputError, match=r"data\.noise_target: 'velocity' -> 'position'"):
         _check_resume(str(ckpt), _steps_cfg(2, "data.noise_target=position"))
+
+
+def test_a_checkpoint_with_the_old_keys_resumes_under_the_new_names(tmp_path):
+    """Checkpoints written before ``data.frames_per_step`` and the ``objective`` group (the
+    shipped ones among them) resume with today's configs; a removed option that was on is
+    refused by name."""
+    from granular_pyg.train import _check_resume
+
+    train(_steps_cfg(1, "trainer.fast_dev_run=false", "checkpoint.every_n_train_steps=1"), tmp_path)
+    ckpt = tmp_path / "checkpoints" / "last.ckpt"
+    state = torch.load(ckpt, map_location="cpu", weights_only=False)
+    data = state["config"]["data"]
+    data["step"] = data.pop("frames_per_step")
+    data |= {"wall_press": 0.0, "keep_leaving": False, "resample_noise_at_walls": True}
+    state["config"].pop("objective")
+    state["config"]["push_forward"] = {"unroll_steps": 4, "unroll_prob": 0.5, "unroll_noise": False}
+    torch.save(state, ckpt)
+    _check_resume(str(ckpt), _steps_cfg(2))
+    with pytest.raises(InputError, match=r"data\.frames_per_step: 1 -> 2"):
+        _check_resume(str(ckpt), _steps_cfg(2, "data.frames_per_step=2"))
+    state["config"]["data"]["wall_press"] = 1e-3
+    torch.save(state, ckpt)
+    with pytest.raises(InputError, match=r"data\.wall_press=0\.001, an option removed"):
+        _check_resume(str(ckpt), _steps_cfg(2))
+
+
+def test_the_shipped_checkpoints_configs_migrate():
+    from granular_pyg.pretrained import resolve_checkpoint
+    from granular_pyg.training.saved_config import migrate_config
+
+    for name, k in (("hopper", 8), ("drum", 4)):
+        path = resolve_checkpoint(f"pretrained:{name}")
+        cfg = migrate_config(torch.load(path, weights_only=False)["config"])
+        assert cfg["data"]["frames_per_step"] == k and "step" not in cfg["data"]
+        assert cfg["objective"]["parts"] == {}
 
 
 @pytest.mark.slow
@@ -257,7 +295,10 @@ def test_validation_rollout_stops_at_the_end_of_a_short_trajectory(tmp_path):
     """With k = 8 the 0.5 s validation trajectory holds 20 learned steps after the initial
     states: asking for 40 rolls out those 20 instead of failing."""
     cfg = _steps_cfg(
-        3, "data.step=8", "rollout_validation.every_n_epochs=1", "rollout_validation.steps=40"
+        3,
+        "data.frames_per_step=8",
+        "rollout_validation.every_n_epochs=1",
+        "rollout_validation.steps=40",
     )
     train(cfg, tmp_path)
     tags = _events(tmp_path).Tags()["scalars"]

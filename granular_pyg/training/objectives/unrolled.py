@@ -1,0 +1,65 @@
+"""Unrolled: the position error along the model's own run, with gradients through it (BPTT)."""
+
+from __future__ import annotations
+
+import torch
+from torch_geometric.data import Batch
+
+from granular_pyg.errors import InputError
+from granular_pyg.simulator import LearnedSimulator
+from granular_pyg.training.objectives.base import Objective, masked_mse
+
+__all__ = ["Unrolled"]
+
+
+class Unrolled(Objective):
+    """Run each clean window ``steps`` steps with the model, gradients through the run; the loss
+    is the mean over the steps of the one-step loss against the acceleration that would take the
+    model's state to LIGGGHTS's next positions, i.e. of the position error along the model's own
+    run (scaled by ``1 / (dt^2 acc_std)``). Particles leave through the outflow as in a rollout.
+    The edges and the walls' closest points are not differentiated: a wall edge's displacement
+    carries the gradient of its particle's position only.
+
+    Args:
+        steps: learned steps ``m`` of the run (the windows hold ``m - 1`` future frames).
+        share: fraction of the batches that take it in a Mixture.
+    """
+
+    def __init__(self, steps: int = 4, share: float = 0.5) -> None:
+        super().__init__(share)
+        self.steps = int(steps)
+        if self.steps < 1:
+            raise InputError(f"unrolled.steps: expected >= 1, got {steps!r}")
+
+    @property
+    def future_frames(self) -> int:
+        return self.steps - 1
+
+    def loss(self, sim: LearnedSimulator, batch: Batch, generator: torch.Generator) -> torch.Tensor:
+        dt, steps, device = float(sim.dt), self.steps, batch.x.device
+        acc_mean, acc_std = sim.acc_mean.double(), sim.acc_std.double()
+        losses = []
+        for w in batch.windows:
+            future = getattr(w, "future", w.target_pos[:, None][:, :0])  # [N, 0, 3] if none
+            if future.shape[1] < steps - 1:
+                raise InputError(
+                    f"the unrolled objective with steps={steps} needs {steps - 1} future frames "
+                    f"per window, the windows hold {future.shape[1]}: attach the data module "
+                    "with this objective (TrajectoryDataModule.attach(sim, objective))"
+                )
+            seq = w.pos_seq.to(device, torch.float64)
+            known = torch.cat([w.target_pos[:, None], future], 1).to(device, torch.float64)
+            for u in range(steps):
+                acc = sim.predict_acceleration(seq, w.walls, w.time + u * dt).double()
+                pred = (acc - acc_mean) / acc_std
+                losses.append(masked_mse(pred, sim.target_acceleration(seq, known[:, u]).double()))
+                if u + 1 == steps:
+                    break
+                nxt = sim.integrate(seq, acc)
+                held = nxt[:, 2] >= w.outflow_z if w.outflow_z is not None else None
+                seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
+                if held is not None:
+                    if not bool(held.any()):
+                        break  # every particle left through the outflow
+                    seq, known = seq[held], known[held]
+        return torch.stack(losses).mean().float()
