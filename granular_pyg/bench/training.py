@@ -40,9 +40,10 @@ def _throughput(processor: str, steps: int, warmup: int, overrides: list[str]) -
     cfg = compose("train", [f"model/processor={processor}", *overrides])
     L.seed_everything(cfg.seed)
     sim = instantiate(cfg.model)
+    objective = instantiate(cfg.objective)
     data = instantiate(cfg.data)
-    data.attach(sim)
-    module = SimulatorModule(sim, **cfg.optim, **cfg.push_forward)
+    data.attach(sim, objective)
+    module = SimulatorModule(sim, objective, **cfg.optim, seed=cfg.seed)
     clock = _StepClock(warmup)
     trainer = L.Trainer(
         accelerator="cpu",
