@@ -53,7 +53,7 @@ format: setup
 bench: setup
 	$(PY) -m granular_pyg.bench suite=geometry
 
-# The paper's experiment (issue 9) on this machine: LIGGGHTS datasets, V1/V2/V3 x 3 seeds on the
+# The paper's experiment on this machine: LIGGGHTS datasets, V1/V2/V3 x 3 seeds on the
 # hopper and V3 on the drum (one torch thread each, two at a time), evaluation, the variant table.
 PAPER := outputs/paper
 paper: setup

@@ -7,9 +7,9 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
+from granular_pyg.cli import command
 from granular_pyg.evaluation import variant_table
 from granular_pyg.evaluation.compare import write_variant_figures
 from granular_pyg.io import atomic_write
@@ -35,7 +35,7 @@ def compare(cfg: DictConfig) -> Path:
     return out / "table.md"
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="compare")
+@command("compare")
 def main(cfg: DictConfig) -> None:
     compare(cfg)
 

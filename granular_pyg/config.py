@@ -1,4 +1,9 @@
-"""Hydra helpers: where the configs are, and composing one from code or from inside an app."""
+"""Hydra helpers: where the configs are, and composing one from code or from inside an app.
+
+The configs live in the checkout's top-level ``conf/``; a wheel carries the same files as
+``granular_pyg/conf`` (``pyproject.toml`` maps one onto the other). A checkout's ``conf/`` wins,
+so that edits there take effect.
+"""
 
 from __future__ import annotations
 
@@ -9,10 +14,24 @@ from hydra import initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig
 
-__all__ = ["CONF_DIR", "compose"]
+__all__ = ["CONF_DIR", "compose", "find_conf_dir"]
 
-#: The top-level ``conf/`` folder (found from a checkout or an editable install).
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+def find_conf_dir() -> Path:
+    """The config folder: the checkout's ``conf/`` (a checkout or an editable install), else the
+    copy installed with the package (``granular_pyg/conf`` in a wheel)."""
+    package = Path(__file__).resolve().parent
+    for folder in (package.parent / "conf", package / "conf"):
+        if (folder / "train.yaml").is_file():
+            return folder
+    raise FileNotFoundError(
+        f"granular_pyg's configs are missing: neither {package.parent / 'conf'} nor "
+        f"{package / 'conf'} holds train.yaml; reinstall the package (pip install .)"
+    )
+
+
+#: The config folder every command and :func:`compose` read.
+CONF_DIR = find_conf_dir()
 
 
 def compose(config_name: str, overrides: list[str] | None = None) -> DictConfig:

@@ -25,6 +25,7 @@ import matplotlib.pyplot as plt
 import torch
 
 from granular_pyg.bench.meshes import funnel_mesh, packed_particles
+from granular_pyg.cli import reports_errors
 from granular_pyg.config import compose
 from granular_pyg.evaluate import evaluate
 from granular_pyg.geometry import (
@@ -100,6 +101,7 @@ def evaluation_demo(out: Path, ckpt: Path | str, steps: int | None = None) -> Pa
     return evaluate(compose("evaluate", overrides))
 
 
+@reports_errors
 def main(argv: list[str] | None = None) -> dict[str, Path]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("outputs/demo"))

@@ -10,11 +10,11 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import hydra
 import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from granular_pyg.cli import command
 from granular_pyg.data import load_split
 from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
@@ -114,7 +114,7 @@ def _split_means(rollouts: list[EvaluatedRollout]) -> dict[str, dict[str, float]
     return {s: {k: float(np.nanmean(v)) for k, v in row.items()} for s, row in values.items()}
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="evaluate")
+@command("evaluate")
 def main(cfg: DictConfig) -> None:
     evaluate(cfg)
 

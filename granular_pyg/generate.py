@@ -23,9 +23,11 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
+from granular_pyg.cli import command
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_write, write_trajectory
+from granular_pyg.progress import show_progress
 
 __all__ = ["generate", "plan_trajectories", "split_counts"]
 
@@ -127,7 +129,7 @@ def generate(cfg: DictConfig) -> Path:
         initial=len(plan) - len(todo),
         desc="trajectories",
         position=0,
-        disable=not cfg.progress,
+        disable=not show_progress(cfg.progress),
     )
     with ThreadPoolExecutor(max_workers=jobs) as pool:
         futures = {pool.submit(_run_one, e, cfg, out, slots): e for e in todo}
@@ -171,7 +173,7 @@ def generate(cfg: DictConfig) -> Path:
     return path
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="generate")
+@command("generate")
 def main(cfg: DictConfig) -> None:
     generate(cfg)
 

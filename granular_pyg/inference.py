@@ -24,7 +24,13 @@ from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator, WallGuard
 
-__all__ = ["load_simulator", "matching_frames", "rollout_trajectory", "time_step_multiple"]
+__all__ = [
+    "initial_frames",
+    "load_simulator",
+    "matching_frames",
+    "rollout_trajectory",
+    "time_step_multiple",
+]
 
 
 def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[LearnedSimulator, dict]:
@@ -79,6 +85,31 @@ def time_step_multiple(sim: LearnedSimulator, frame_dt: float) -> int:
     return k
 
 
+def initial_frames(
+    sim: LearnedSimulator, truth: Trajectory, start_frame: int = 0
+) -> tuple[int, np.ndarray]:
+    """Where a rollout of ``sim`` over ``truth`` starts.
+
+    Returns:
+        ``(k, frames)``: saved frames per learned step and the ``[H + 1]`` indices of the
+        ground-truth frames that are the initial states, every ``k``-th from ``start_frame``.
+
+    Raises:
+        InputError: no Scene (walls), a frame spacing the model's step is not a multiple of,
+            or too few frames.
+    """
+    if truth.scene is None:
+        raise InputError("truth: a rollout needs the trajectory's Scene (walls); it has none")
+    k = time_step_multiple(sim, truth.frame_dt)
+    frames = np.arange(start_frame, start_frame + (sim.history + 1) * k, k)
+    if start_frame < 0 or frames[-1] >= truth.num_frames:
+        raise InputError(
+            f"start_frame: {start_frame} leaves fewer than {sim.history + 1} initial frames "
+            f"(every {k}) in a trajectory of {truth.num_frames} frames"
+        )
+    return k, frames
+
+
 def rollout_trajectory(
     sim: LearnedSimulator,
     truth: Trajectory,
@@ -115,16 +146,7 @@ def rollout_trajectory(
         NonFiniteError: the model predicted NaN/Inf; its ``partial`` attribute holds the
             Trajectory up to the failing step (metadata ``failed_step``), nothing is lost.
     """
-    if truth.scene is None:
-        raise InputError("truth: a rollout needs the trajectory's Scene (walls); it has none")
-    k = time_step_multiple(sim, truth.frame_dt)
-    history = sim.history
-    initial = np.arange(start_frame, start_frame + (history + 1) * k, k)
-    if start_frame < 0 or initial[-1] >= truth.num_frames:
-        raise InputError(
-            f"start_frame: {start_frame} leaves fewer than {history + 1} initial frames "
-            f"(every {k}) in a trajectory of {truth.num_frames} frames"
-        )
+    k, initial = initial_frames(sim, truth, start_frame)
     available = (truth.num_frames - 1 - initial[-1]) // k
     steps = available if steps is None else int(steps)
     if steps < 0:

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import hydra
 import torch
 from omegaconf import DictConfig
 
+from granular_pyg.cli import command
 from granular_pyg.data import load_split
 from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.inference import load_simulator, rollout_trajectory
@@ -72,7 +72,7 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     return pred, out
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="rollout")
+@command("rollout")
 def main(cfg: DictConfig) -> None:
     rollout(cfg)
 

@@ -27,6 +27,7 @@ Integration is semi-implicit Euler with the module's step ``dt`` (s):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -35,6 +36,7 @@ from torch_geometric.data import Batch, Data
 
 from granular_pyg.errors import InputError, NonFiniteError, check_coordinates_fit, check_tensor
 from granular_pyg.nn import EncodeProcessDecode, Processor
+from granular_pyg.progress import show_progress
 from granular_pyg.scenes import WallSet
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 
@@ -333,8 +335,11 @@ class LearnedSimulator(nn.Module):
         progress: bool = False,
         skin: float | None = None,
         guard: WallGuard | None = None,
+        on_step: Callable[[int, float, torch.Tensor, torch.Tensor], bool | None] | None = None,
+        keep: bool = True,
     ) -> torch.Tensor:
-        """Autoregressive rollout of ``steps`` learned steps from ``pos_seq``.
+        """Autoregressive rollout of ``steps`` learned steps from ``pos_seq``: the one loop that
+        ``rollout``, ``evaluate`` and ``stress`` run.
 
         Args:
             pos_seq: ``[N, H + 1, 3]`` initial positions (m), NaN rows for absent particles.
@@ -342,13 +347,19 @@ class LearnedSimulator(nn.Module):
             time: recorded time (s) of the last initial position.
             steps: learned steps to take.
             outflow_z: the scene's outflow height (m), or None.
-            progress: show a progress bar.
+            progress: show a progress bar (in a terminal).
             skin: reuse the radius graph between steps with this Verlet skin (m); the same
                 edges as fresh graphs, fewer tree searches. None: a fresh graph every step.
             guard: keep centres inside the walls (:class:`WallGuard`); None: the model alone.
+            on_step: a per-step check, ``on_step(s, t, seq, nxt)`` with the step index, its
+                start time (s), the ``[N, H + 1, 3]`` input and the ``[N, 3]`` prediction
+                before the outflow removes anyone. It may set rows of ``nxt`` to NaN (particles
+                that left) and returns True to end the rollout after this step.
+            keep: return the predictions; False returns an empty ``[0, N, 3]`` (long checks).
 
         Returns:
-            ``[steps, N, 3]`` predicted positions, NaN for particles that have left.
+            ``[S, N, 3]`` predicted positions, NaN for particles that have left; ``S = steps``
+            unless ``on_step`` ended the rollout earlier.
         """
         from tqdm.auto import tqdm
 
@@ -356,9 +367,12 @@ class LearnedSimulator(nn.Module):
         dt = float(self.dt)
         rg = self.radius_graph
         neighbours = None if skin is None else NeighbourList(rg.radius, skin, rg.backend)
-        for s in tqdm(range(steps), desc="rollout", unit="step", disable=not progress):
+        bar = tqdm(range(steps), desc="rollout", unit="step", disable=not show_progress(progress))
+        for s in bar:
+            t = time + s * dt
             try:
-                nxt = self.step(seq, walls, time + s * dt, outflow_z, neighbours, guard)
+                nxt = self.step(seq, walls, t, None, neighbours, guard)
+                stop = bool(on_step(s, t, seq, nxt)) if on_step is not None else False
             except NonFiniteError as exc:
                 exc.step = s
                 exc.args = (f"learned step {s}: {exc.args[0]}",)
@@ -366,6 +380,11 @@ class LearnedSimulator(nn.Module):
                     torch.stack(out) if out else pos_seq.new_zeros((0, *pos_seq.shape[::2]))
                 )
                 raise
-            out.append(nxt)
+            if outflow_z is not None:
+                nxt[nxt[:, 2] < outflow_z] = float("nan")
+            if keep:
+                out.append(nxt)
             seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
+            if stop:
+                break
         return torch.stack(out) if out else pos_seq.new_zeros((0, *pos_seq.shape[::2]))

@@ -32,18 +32,17 @@ import dataclasses
 import io
 import json
 import math
-import sys
 from pathlib import Path
 
-import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
+from granular_pyg.cli import command
 from granular_pyg.errors import InputError, NonFiniteError
-from granular_pyg.inference import load_simulator, time_step_multiple
-from granular_pyg.io import Trajectory, atomic_write, read_trajectory
+from granular_pyg.inference import initial_frames, load_simulator
+from granular_pyg.io import Trajectory, atomic_write, command_line, markdown_table, read_trajectory
 from granular_pyg.metrics import crushed_particles, leaked_mask
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
@@ -123,28 +122,16 @@ def stress_case(
         ``kinetic_energy_j``, ``present``, ``leaked``, ``drift``, ``overlapping``,
         ``divergence_m``).
     """
-    from tqdm.auto import tqdm
-
-    if truth.scene is None:
-        raise InputError("truth: a stress rollout needs the trajectory's Scene (walls)")
     if steps < 1:
         raise InputError(f"steps: expected a positive number of learned steps, got {steps}")
+    k, initial = initial_frames(sim, truth)
     closers = {w.name for w in truth.scene.walls if w.removal_time is not None}  # the lid
     if resting:
         truth = _without_removals(truth)
-    scene, walls = truth.scene, WallSet(truth.scene)
-    k = time_step_multiple(sim, truth.frame_dt)
-    initial = np.arange(0, (sim.history + 1) * k, k)
-    if initial[-1] >= truth.num_frames:
-        raise InputError(f"truth: fewer than {sim.history + 1} initial frames every {k}")
-    if resting:
         initial = np.zeros_like(initial)
+    scene, walls = truth.scene, WallSet(truth.scene)
     start = torch.from_numpy(truth.positions[initial]).permute(1, 0, 2).contiguous()
-    runs = {"float32": start.float()}
-    if compare_float64:
-        runs["float64"] = start.double()
     radii = torch.from_numpy(truth.radii).double()
-    guards = {name: WallGuard(radii) if wall_guard else None for name in runs}
     dt, t0 = float(sim.dt), float(truth.times[initial[-1]])
     mass, tol = _masses(truth), float(truth.radii.min())
     ke_truth = _truth_max_kinetic_energy(truth)
@@ -161,6 +148,7 @@ def stress_case(
         "truth_max_kinetic_energy_j": ke_truth,
         "first_failure_step": -1,
         "failure": "",
+        "steps_done": 0,
         "max_kinetic_energy_ratio": 0.0,
         "left_through_outflow": 0,
         "escaped_box": 0,
@@ -168,92 +156,90 @@ def stress_case(
         "max_overlapping_particles": 0,
         "max_divergence_m": 0.0,
     }
+    guard = WallGuard(radii) if wall_guard else None
+    # the float64 twin runs in lockstep inside the check, from the same initial states
+    twin = {"seq": start.double(), "guard": WallGuard(radii) if wall_guard else None}
 
     def fail(step: int, why: str) -> None:
         if summary["first_failure_step"] < 0:
             summary["first_failure_step"], summary["failure"] = step, why
 
-    done = 0
-    with torch.inference_mode():
-        for s in tqdm(range(steps), desc="stress", unit="step", disable=not progress):
-            time = t0 + s * dt
-            nxt = {}
-            try:
-                for name, seq in runs.items():
-                    nxt[name] = sim.step(seq, walls, time, guard=guards[name])
-            except NonFiniteError as exc:
-                fail(s, f"NaN/Inf prediction ({name}) for particle rows {exc.particle_ids[:10]}")
-                break
-            seq, new = runs["float32"], nxt["float32"]
-            before = torch.isfinite(seq[:, -1]).all(1)
-            out = new[:, 2] < outflow if outflow is not None else torch.zeros_like(before)
-            # As in LIGGGHTS, a particle that leaves the simulation box is gone; other than
-            # through the outflow floor it escaped through a wall.
-            outside = {name: _outside(pos, box) for name, pos in nxt.items()}
-            escaped = outside["float32"] & ~out & before
-            n_escaped = int(escaped.sum())
-            for name in nxt:
-                nxt[name][outside[name]] = float("nan")
-            after = torch.isfinite(nxt["float32"]).all(1)
-            # Reaching the outflow through a closed outlet is a leak too.
-            now = leaked_mask(nxt["float32"].numpy()[None], scene, np.array([time + dt]), tol)[0]
-            if any(w.present(time + dt) for w in scene.walls if w.name in closers):
-                now |= (before & out).numpy()
-            if n_escaped:
-                fail(s, f"{n_escaped} particle(s) escaped the scene's box through a wall")
-                now |= escaped.numpy()
-            if now.any():
-                fail(s, f"{int(now.sum())} particle(s) leaked through a wall")
-            leaked_ever |= now
-            left = int((before & out).sum())
-            drift = int(before.sum()) - int(after.sum()) - left - n_escaped
-            summary["left_through_outflow"] += left
-            summary["escaped_box"] += n_escaped
-            summary["drift"] += drift
-            if drift:
-                fail(s, f"{drift} particle(s) vanished other than through the outflow")
-            crushed = int(crushed_particles(nxt["float32"].numpy()[None], tol)[0])
-            summary["max_overlapping_particles"] = max(
-                summary["max_overlapping_particles"], crushed
+    def check(s: int, time: float, seq: torch.Tensor, new: torch.Tensor) -> bool:
+        nxt = {"float32": new}
+        if compare_float64:
+            nxt["float64"] = sim.step(twin["seq"], walls, time, guard=twin["guard"])
+        before = torch.isfinite(seq[:, -1]).all(1)
+        out = new[:, 2] < outflow if outflow is not None else torch.zeros_like(before)
+        # As in LIGGGHTS, a particle that leaves the simulation box is gone; other than
+        # through the outflow floor it escaped through a wall.
+        outside = {name: _outside(pos, box) for name, pos in nxt.items()}
+        escaped = outside["float32"] & ~out & before
+        n_escaped = int(escaped.sum())
+        for name in nxt:
+            nxt[name][outside[name]] = float("nan")
+        after = torch.isfinite(new).all(1)  # the box's floor is the outflow plane
+        # Reaching the outflow through a closed outlet is a leak too.
+        now = leaked_mask(new.numpy()[None], scene, np.array([time + dt]), tol)[0]
+        if any(w.present(time + dt) for w in scene.walls if w.name in closers):
+            now |= (before & out).numpy()
+        if n_escaped:
+            fail(s, f"{n_escaped} particle(s) escaped the scene's box through a wall")
+            now |= escaped.numpy()
+        if now.any():
+            fail(s, f"{int(now.sum())} particle(s) leaked through a wall")
+        leaked_ever[:] |= now
+        left = int((before & out).sum())
+        drift = int(before.sum()) - int(after.sum()) - left - n_escaped
+        summary["left_through_outflow"] += left
+        summary["escaped_box"] += n_escaped
+        summary["drift"] += drift
+        if drift:
+            fail(s, f"{drift} particle(s) vanished other than through the outflow")
+        crushed = int(crushed_particles(new.numpy()[None], tol)[0])
+        summary["max_overlapping_particles"] = max(summary["max_overlapping_particles"], crushed)
+        n_after = max(int(after.sum()), 1)
+        if crushed > overlap_limit * n_after:
+            fail(s, f"{crushed} particles closer than a radius to another (a crushed bed)")
+        crushed_bed = crushed > crushed_stop * n_after
+        energy = kinetic_energy(seq[:, -1], new, mass, dt)
+        ratio = energy / ke_truth if ke_truth > 0 else (math.inf if energy > 0 else 0.0)
+        summary["max_kinetic_energy_ratio"] = max(summary["max_kinetic_energy_ratio"], ratio)
+        if ratio > ke_limit:
+            fail(s, f"kinetic energy {ratio:.3g} x the truth's largest")
+        divergence = math.nan
+        if compare_float64:
+            a, b = new.double(), nxt["float64"]
+            both = torch.isfinite(a).all(1) & torch.isfinite(b).all(1)
+            if bool(both.any()):
+                divergence = float(((a[both] - b[both]) ** 2).sum(1).mean().sqrt())
+                summary["max_divergence_m"] = max(summary["max_divergence_m"], divergence)
+            twin["seq"] = torch.cat([twin["seq"][:, 1:], b[:, None]], dim=1)
+        summary["steps_done"] = s + 1
+        if crushed_bed or s < sample_every**2 or s % sample_every == 0 or s == steps - 1:
+            rows.append(
+                {
+                    "step": s,
+                    "time_s": time + dt,
+                    "kinetic_energy_j": energy,
+                    "kinetic_energy_ratio": ratio,
+                    "present": int(after.sum()),
+                    "leaked": int(leaked_ever.sum()),
+                    "drift": summary["drift"],
+                    "overlapping": crushed,
+                    "divergence_m": divergence,
+                }
             )
-            n_after = max(int(after.sum()), 1)
-            if crushed > overlap_limit * n_after:
-                fail(s, f"{crushed} particles closer than a radius to another (a crushed bed)")
-            crushed_bed = crushed > crushed_stop * n_after
-            energy = kinetic_energy(seq[:, -1], nxt["float32"], mass, dt)
-            ratio = energy / ke_truth if ke_truth > 0 else (math.inf if energy > 0 else 0.0)
-            summary["max_kinetic_energy_ratio"] = max(summary["max_kinetic_energy_ratio"], ratio)
-            if ratio > ke_limit:
-                fail(s, f"kinetic energy {ratio:.3g} x the truth's largest")
-            divergence = math.nan
-            if compare_float64:
-                a, b = nxt["float32"].double(), nxt["float64"]
-                both = torch.isfinite(a).all(1) & torch.isfinite(b).all(1)
-                if bool(both.any()):
-                    divergence = float(((a[both] - b[both]) ** 2).sum(1).mean().sqrt())
-                    summary["max_divergence_m"] = max(summary["max_divergence_m"], divergence)
-            for name in runs:
-                runs[name] = torch.cat([runs[name][:, 1:], nxt[name][:, None]], dim=1)
-            done = s + 1
-            if crushed_bed or s < sample_every**2 or s % sample_every == 0 or s == steps - 1:
-                rows.append(
-                    {
-                        "step": s,
-                        "time_s": time + dt,
-                        "kinetic_energy_j": energy,
-                        "kinetic_energy_ratio": ratio,
-                        "present": int(after.sum()),
-                        "leaked": int(leaked_ever.sum()),
-                        "drift": summary["drift"],
-                        "overlapping": crushed,
-                        "divergence_m": divergence,
-                    }
-                )
-            if crushed_bed:  # its graph grows towards N^2 edges: every further step slower
-                break
-    summary["steps_done"] = done
+        return crushed_bed  # its graph grows towards N^2 edges: every further step slower
+
+    with torch.inference_mode():
+        try:
+            sim.rollout(
+                start.float(), walls, t0, steps, outflow, progress, None, guard, check, keep=False
+            )
+        except NonFiniteError as exc:
+            fail(exc.step, f"NaN/Inf prediction for particle rows {exc.particle_ids[:10]}")
     if wall_guard:
-        summary["wall_guard_corrections"] = guards["float32"].corrected
+        summary["wall_guard_corrections"] = guard.corrected
     summary["leaked_particles"] = int(leaked_ever.sum())
     summary["present_at_end"] = rows[-1]["present"] if rows else truth.num_particles
     return summary, rows
@@ -291,28 +277,33 @@ def _figure(results: dict[str, tuple[dict, list[dict]]]):
 
 
 def _markdown(results: dict[str, tuple[dict, list[dict]]], command: str) -> str:
-    lines = [
-        "# Stress test",
-        "",
-        f"Command: `{command}`",
-        "",
-        "| case | steps done | k | particles | first failure | max KE / truth | leaked "
-        "| left (outflow) | escaped box | drift | max overlapping | "
-        "max float32-float64 divergence (m) | wall-guard corrections |",
-        "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|",
-    ]
+    columns = [
+        "case", "steps done", "k", "particles", "first failure", "max KE / truth", "leaked",
+        "left (outflow)", "escaped box", "drift", "max overlapping",
+        "max float32-float64 divergence (m)", "wall-guard corrections",
+    ]  # fmt: skip
+    rows = []
     for name, (s, _) in results.items():
         first = "none" if s["first_failure_step"] < 0 else f"step {s['first_failure_step']}: "
-        first += s["failure"]
-        lines.append(
-            f"| {name} | {s['steps_done']:,} / {s['steps']:,} | {s['k']} | {s['particles']} "
-            f"| {first} | {s['max_kinetic_energy_ratio']:.3g} | {s['leaked_particles']} "
-            f"| {s['left_through_outflow']} | {s['escaped_box']} | {s['drift']} "
-            f"| {s['max_overlapping_particles']} "
-            f"| {s['max_divergence_m']:.3g} | {s.get('wall_guard_corrections', 'off')} |"
+        rows.append(
+            [
+                name,
+                f"{s['steps_done']:,} / {s['steps']:,}",
+                s["k"],
+                s["particles"],
+                first + s["failure"],
+                f"{s['max_kinetic_energy_ratio']:.3g}",
+                s["leaked_particles"],
+                s["left_through_outflow"],
+                s["escaped_box"],
+                s["drift"],
+                s["max_overlapping_particles"],
+                f"{s['max_divergence_m']:.3g}",
+                s.get("wall_guard_corrections", "off"),
+            ]
         )
-    lines += ["", "![stress](stress.png)", ""]
-    return "\n".join(lines)
+    table = markdown_table(columns, rows, align="lrrrlrrrrrrrr")
+    return f"# Stress test\n\nCommand: `{command}`\n\n{table}\n\n![stress](stress.png)\n"
 
 
 def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
@@ -339,7 +330,7 @@ def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
             wall_guard=bool(case.get("wall_guard", cfg.wall_guard)),
         )
     out_dir = Path(out_dir)
-    command = "python -m granular_pyg.stress " + " ".join(sys.argv[1:])
+    command = command_line("granular_pyg.stress")
     with atomic_write(out_dir / "stress.json") as fh:
         json.dump({n: s for n, (s, _) in results.items()} | {"command": command}, fh, indent=2)
     buf = io.StringIO()
@@ -363,7 +354,7 @@ def stress(cfg: DictConfig, out_dir: Path) -> dict[str, dict]:
     return {n: s for n, (s, _) in results.items()}
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="stress")
+@command("stress")
 def main(cfg: DictConfig) -> None:
     stress(cfg, Path(HydraConfig.get().runtime.output_dir))
 

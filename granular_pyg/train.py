@@ -7,17 +7,20 @@ metrics and figures), ``.hydra/`` (the composed config). ``ckpt_path=<file>`` re
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
-import hydra
 import lightning as L
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
+from granular_pyg.cli import command
 from granular_pyg.errors import InputError
+from granular_pyg.progress import show_progress
 from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
+from granular_pyg.training.epoch_log import EpochLog
 from granular_pyg.training.saved_config import migrate_config
 
 __all__ = ["train"]
@@ -96,8 +99,13 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     ]
     if logger:
         callbacks.append(L.pytorch.callbacks.LearningRateMonitor(logging_interval="step"))
+    # a bar per batch in a terminal; one line per epoch in a log file
+    bar = show_progress(cfg.trainer.get("enable_progress_bar", True), sys.stdout)
+    if not bar:
+        callbacks.append(EpochLog())
     trainer = instantiate(
         cfg.trainer,
+        enable_progress_bar=bar,
         logger=logger,
         callbacks=callbacks,
         default_root_dir=str(out),
@@ -116,7 +124,7 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     return metrics
 
 
-@hydra.main(version_base="1.3", config_path="../conf", config_name="train")
+@command("train")
 def main(cfg: DictConfig) -> float | None:
     metrics = train(cfg)
     return metrics.get("val/loss")

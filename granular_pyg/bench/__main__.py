@@ -5,7 +5,6 @@ Outputs land in ``outputs/bench/<suite>/<timestamp>/`` (see ``conf/bench.yaml``)
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import hydra
@@ -14,15 +13,16 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from granular_pyg.bench.report import SuiteResult, write_report
+from granular_pyg.cli import command
+from granular_pyg.io import command_line
 
 
-@hydra.main(version_base="1.3", config_path="../../conf", config_name="bench")
+@command("bench")
 def main(cfg: DictConfig) -> dict[str, float]:
     torch.set_num_threads(cfg.threads)
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     result: SuiteResult = hydra.utils.call(cfg.suite.run, repeats=cfg.repeats)
-    command = "python -m granular_pyg.bench " + " ".join(sys.argv[1:])
-    report = write_report(out_dir, cfg.suite.name, result, command.strip())
+    report = write_report(out_dir, cfg.suite.name, result, command_line("granular_pyg.bench"))
     for key, value in result.results.items():
         print(f"{key:>48s}  {value:.4g}")
     for target in result.targets:

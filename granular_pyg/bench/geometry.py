@@ -1,7 +1,7 @@
 """Suite ``geometry``: wall-pair queries of :class:`WallIndex` against the dense computation.
 
 Measured at BGNN's hopper scale (20,000 particles x 424 triangles) and on a finely tessellated
-hopper (20,000 triangles). Targets (issue 2): the index at least 20x faster than dense at 424
+hopper (20,000 triangles). Targets: the index at least 20x faster than dense at 424
 triangles; at 20,000 triangles, within 2x of the 424-triangle query time for the same number of
 near pairs (a random subset of particles chosen so the pair counts match).
 """

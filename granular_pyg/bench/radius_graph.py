@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import torch
 
+from granular_pyg.io import markdown_table
 from granular_pyg.transforms.radius_graph import radius_graph
 
 SPACING = 0.003  # m
@@ -97,19 +98,30 @@ def measure(
 
 def format_table(rows: list[dict]) -> str:
     """The rows of :func:`measure` as a Markdown table (times in ms)."""
-    lines = [
-        "| points | edges | scipy (ms) | torch_cluster (ms) | query_pairs (ms) "
-        "| torch_cluster / scipy | scipy / query_pairs | same edges |",
-        "|---:|---:|---:|---:|---:|---:|---:|:---:|",
+    columns = [
+        "points",
+        "edges",
+        "scipy (ms)",
+        "torch_cluster (ms)",
+        "query_pairs (ms)",
+        "torch_cluster / scipy",
+        "scipy / query_pairs",
+        "same edges",
     ]
-    for r in rows:
-        lines.append(
-            f"| {r['num_points']:,} | {r['edges']:,} | {1e3 * r['scipy_s']:.1f} "
-            f"| {1e3 * r['torch_cluster_s']:.1f} | {1e3 * r['query_pairs_s']:.1f} "
-            f"| {r['torch_cluster_over_scipy']:.2f} | {r['scipy_over_query_pairs']:.2f} "
-            f"| {'yes' if r['same_edges'] else 'NO'} |"
-        )
-    return "\n".join(lines)
+    cells = [
+        [
+            f"{r['num_points']:,}",
+            f"{r['edges']:,}",
+            f"{1e3 * r['scipy_s']:.1f}",
+            f"{1e3 * r['torch_cluster_s']:.1f}",
+            f"{1e3 * r['query_pairs_s']:.1f}",
+            f"{r['torch_cluster_over_scipy']:.2f}",
+            f"{r['scipy_over_query_pairs']:.2f}",
+            "yes" if r["same_edges"] else "NO",
+        ]
+        for r in rows
+    ]
+    return markdown_table(columns, cells, align="rrrrrrrc")
 
 
 if __name__ == "__main__":

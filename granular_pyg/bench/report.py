@@ -22,12 +22,12 @@ from pathlib import Path
 
 import torch
 
-from granular_pyg.io import atomic_write
+from granular_pyg.io import atomic_write, markdown_table
 
 
 @dataclass
 class Target:
-    """A target from an issue: ``value`` must satisfy ``value <op> bound``."""
+    """A performance target: ``value`` must satisfy ``value <op> bound``."""
 
     name: str
     value: float
@@ -117,10 +117,7 @@ def _markdown_table(rows: list[dict]) -> str:
     if not rows:
         return ""
     keys = _columns(rows)
-    fmt = lambda v: f"{v:.4g}" if isinstance(v, float) else str(v)  # noqa: E731
-    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    lines += ["| " + " | ".join(fmt(row.get(k, "")) for k in keys) + " |" for row in rows]
-    return "\n".join(lines)
+    return markdown_table(keys, [[row.get(k) for k in keys] for row in rows])
 
 
 def write_report(out_dir: Path, suite: str, result: SuiteResult, command: str) -> Path:
@@ -157,11 +154,15 @@ def write_report(out_dir: Path, suite: str, result: SuiteResult, command: str) -
     lines += [f"Commit `{payload['commit']}`, machine: {payload['machine']}", ""]
     lines += [_markdown_table(result.rows), ""]
     if result.targets:
-        lines += ["## Targets", "", "| target | measured | required | met |", "|---|---|---|---|"]
-        for t in result.targets:
-            lines.append(
-                f"| {t.name} | {t.value:.3g} | {t.op} {t.bound:g} | {'yes' if t.met else 'NO'} |"
-            )
+        targets = [
+            [t.name, f"{t.value:.3g}", f"{t.op} {t.bound:g}", "yes" if t.met else "NO"]
+            for t in result.targets
+        ]
+        lines += [
+            "## Targets",
+            "",
+            markdown_table(["target", "measured", "required", "met"], targets),
+        ]
         lines.append("")
     if result.notes:
         lines += [result.notes, ""]

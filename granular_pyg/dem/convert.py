@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from granular_pyg.cli import reports_errors
 from granular_pyg.dem.dump import frames_to_arrays, read_dump
 from granular_pyg.errors import InputError
 from granular_pyg.io.trajectory import Trajectory, write_trajectory
@@ -152,6 +153,7 @@ def load_stl_wall(path: str | os.PathLike, name: str) -> Wall:
     return Wall(name=name, vertices=vertices, faces=inverse.reshape(-1)[faces])
 
 
+@reports_errors
 def main(argv: Sequence[str] | None = None) -> Path:
     """Command line: convert dumps + STL files into one HDF5 trajectory; see the module doc."""
     parser = argparse.ArgumentParser(
@@ -171,19 +173,16 @@ def main(argv: Sequence[str] | None = None) -> Path:
         "--on-truncated", choices=("warn", "raise"), default="warn", help="truncated last frame"
     )
     args = parser.parse_args(argv)
-    try:
-        traj = trajectory_from_dumps(
-            args.dumps,
-            args.stl,
-            args.dem_dt,
-            gravity=tuple(args.gravity),
-            outflow_z=args.outflow_z,
-            on_truncated=args.on_truncated,
-            pattern=args.pattern,
-        )
-        write_trajectory(traj, args.out)
-    except (InputError, FileNotFoundError) as err:
-        parser.error(str(err))
+    traj = trajectory_from_dumps(
+        args.dumps,
+        args.stl,
+        args.dem_dt,
+        gravity=tuple(args.gravity),
+        outflow_z=args.outflow_z,
+        on_truncated=args.on_truncated,
+        pattern=args.pattern,
+    )
+    write_trajectory(traj, args.out)
     walls = ", ".join(f"{w.name} ({len(w.faces)} triangles)" for w in traj.scene.walls)
     print(
         f"wrote {args.out}: {traj.num_frames} frames x {traj.num_particles} particles, "

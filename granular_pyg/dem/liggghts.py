@@ -1,6 +1,6 @@
 """Run LIGGGHTS on a Scene: render the input script, run it with a progress bar, read the result.
 
-The script follows the settings proven on this machine (``REFERENCE.md``): SI units, granular
+The script uses settings that the Debian LIGGGHTS-PUBLIC package runs reliably: SI units, granular
 atoms, Hertz contacts with tangential history, ASCII STL walls in ONE ``wall/gran`` fix (a
 removed wall is dropped by re-creating that fix), ``insert/rate/region`` filling (which ignores
 walls, so the inserted count is checked), ``boundary f f f`` with lost atoms ignored so that the
@@ -28,6 +28,7 @@ from tqdm.auto import tqdm
 
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_write
+from granular_pyg.progress import show_progress
 from granular_pyg.scenes import Scene, Wall
 
 __all__ = [
@@ -355,7 +356,7 @@ def run_liggghts(
         total=round(total, 6),
         unit="s",
         desc=f"LIGGGHTS {scene.name} (simulated time)",
-        disable=not progress,
+        disable=not show_progress(progress),
         position=progress_position,
         leave=progress_position == 0,
         bar_format="{l_bar}{bar}| {n:.3f}/{total:.3f} s [{elapsed}<{remaining}]",

@@ -12,6 +12,7 @@ import numpy as np
 from scipy.stats import wilcoxon
 
 from granular_pyg.errors import InputError
+from granular_pyg.io import markdown_table
 
 __all__ = ["load_emd_values", "variant_table", "write_variant_figures"]
 
@@ -136,24 +137,26 @@ def _mean_over_seeds(runs: list[dict]) -> dict:
 
 
 def _markdown(rows: list[dict], splits: list[str], reference: str) -> str:
-    head = "| variant | runs |"
-    rule = "|---|---|"
+    columns = ["variant", "runs"]
     for split in splits:
-        head += (
-            f" {split} mu | {split} sigma | {split} p ({reference} < row) |"
-            f" {split} p (row < {reference}) |"
-        )
-        rule += "---|---|---|---|"
-    lines = [head, rule]
+        columns += [
+            f"{split} mu",
+            f"{split} sigma",
+            f"{split} p ({reference} < row)",
+            f"{split} p (row < {reference})",
+        ]
+    cells = []
     for row in rows:
-        line = f"| {row['variant']} | {row['runs']} |"
+        line = [row["variant"], row["runs"]]
         for split in splits:
-            line += (
-                f" {row[f'{split}_mu']:.3e} | {row[f'{split}_sigma']:.3e} |"
-                f" {_p(row[f'{split}_p_ref_less'])} | {_p(row[f'{split}_p_row_less'])} |"
-            )
-        lines.append(line)
-    return "\n".join(lines) + "\n"
+            line += [
+                f"{row[f'{split}_mu']:.3e}",
+                f"{row[f'{split}_sigma']:.3e}",
+                _p(row[f"{split}_p_ref_less"]),
+                _p(row[f"{split}_p_row_less"]),
+            ]
+        cells.append(line)
+    return markdown_table(columns, cells) + "\n"
 
 
 def _p(value: float) -> str:

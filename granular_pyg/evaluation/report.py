@@ -14,7 +14,7 @@ import numpy as np
 
 from granular_pyg.evaluation.figures import comparison_figure
 from granular_pyg.evaluation.pair import PairEvaluation
-from granular_pyg.io import atomic_write
+from granular_pyg.io import atomic_write, markdown_table
 
 __all__ = ["EvaluatedRollout", "write_evaluation"]
 
@@ -180,18 +180,22 @@ def _markdown(rollouts, means, info, figures, out: Path) -> str:
         "",
     ]
     shown = [k for k in HEADLINE if any(k in m for m in means.values())]
-    lines.append("| metric | unit | " + " | ".join(means) + " |")
-    lines.append("|---|---|" + "---|" * len(means))
-    for key in shown:
-        vals = " | ".join(_fmt(m.get(key, float("nan"))) for m in means.values())
-        lines.append(f"| {key} | {HEADLINE[key]} | {vals} |")
+    lines.append(
+        markdown_table(
+            ["metric", "unit", *means],
+            [
+                [key, HEADLINE[key], *(_fmt(m.get(key, float("nan"))) for m in means.values())]
+                for key in shown
+            ],
+        )
+    )
     lines += ["", "## Per trajectory", ""]
-    lines.append("| split | trajectory | steps | " + " | ".join(shown) + " |")
-    lines.append("|---|---|---|" + "---|" * len(shown))
+    per_trajectory = []
     for r in rollouts:
         s = r.evaluation.scalars
-        vals = " | ".join(_fmt(s.get(k, float("nan"))) for k in shown)
-        lines.append(f"| {r.split} | {r.name} | {int(s['steps'])} | {vals} |")
+        vals = [_fmt(s.get(k, float("nan"))) for k in shown]
+        per_trajectory.append([r.split, r.name, int(s["steps"]), *vals])
+    lines.append(markdown_table(["split", "trajectory", "steps", *shown], per_trajectory))
     lines += ["", "## Figures (LIGGGHTS solid, learned dashed)", ""]
     for (split, name), path in figures.items():
         lines.append(f"![{split} {name}]({path.relative_to(out)})")

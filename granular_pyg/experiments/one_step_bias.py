@@ -17,18 +17,24 @@ table and writes ``table.md`` and ``results.json``.
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
-import hydra
 import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from granular_pyg.cli import command
 from granular_pyg.data.windows import WindowDataset
 from granular_pyg.errors import InputError
 from granular_pyg.inference import load_simulator, time_step_multiple
-from granular_pyg.io import Trajectory, atomic_write, read_trajectory
+from granular_pyg.io import (
+    Trajectory,
+    atomic_write,
+    command_header,
+    command_line,
+    markdown_table,
+    read_trajectory,
+)
 from granular_pyg.simulator import LearnedSimulator
 
 __all__ = ["format_table", "one_step_bias"]
@@ -103,20 +109,30 @@ def one_step_bias(
 
 def format_table(rows: list[dict]) -> str:
     """Markdown table of :func:`one_step_bias`'s rows (heights in mm)."""
-    lines = [
-        "| height above the outlet (mm) | particle-windows | predicted a_z | LIGGGHTS a_z "
-        "| bias | RMS error |",
-        "|---|---:|---:|---:|---:|---:|",
+    columns = [
+        "height above the outlet (mm)",
+        "particle-windows",
+        "predicted a_z",
+        "LIGGGHTS a_z",
+        "bias",
+        "RMS error",
     ]
-    for r in rows:
-        lines.append(
-            f"| {1e3 * r['z_low']:g} to {1e3 * r['z_high']:g} | {r['count']} "
-            f"| {r['pred_az']:.2f} | {r['true_az']:.2f} | {r['bias']:+.2f} | {r['rmse']:.2f} |"
-        )
-    return "\n".join(lines) + "\n\n(m/s^2; z up, gravity -9.81)\n"
+    cells = [
+        [
+            f"{1e3 * r['z_low']:g} to {1e3 * r['z_high']:g}",
+            f"{r['count']}",
+            f"{r['pred_az']:.2f}",
+            f"{r['true_az']:.2f}",
+            f"{r['bias']:+.2f}",
+            f"{r['rmse']:.2f}",
+        ]
+        for r in rows
+    ]
+    table = markdown_table(columns, cells, align="lrrrrr")
+    return table + "\n\n(m/s^2; z up, gravity -9.81)\n"
 
 
-@hydra.main(version_base="1.3", config_path="../../conf", config_name="one_step_bias")
+@command("one_step_bias")
 def main(cfg: DictConfig) -> None:
     torch.set_num_threads(cfg.threads)
     sim, _ = load_simulator(cfg.ckpt)
@@ -124,14 +140,14 @@ def main(cfg: DictConfig) -> None:
     trajectories = [read_trajectory(f) for f in cfg.files]
     bands = [(float(lo), float(hi)) for lo, hi in cfg.bands]
     rows = one_step_bias(sim, trajectories, bands, cfg.every, cfg.last_time)
-    command = "python -m granular_pyg.experiments.one_step_bias " + " ".join(sys.argv[1:])
+    module = "granular_pyg.experiments.one_step_bias"
     table = format_table(rows)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     with atomic_write(out / "table.md") as fh:
-        fh.write(f"Command: `{command.strip()}`\n\n{table}")
+        fh.write(f"{command_header(module)}\n\n{table}")
     with atomic_write(out / "results.json") as fh:
-        json.dump({"command": command.strip(), "rows": rows}, fh, indent=1)
+        json.dump({"command": command_line(module), "rows": rows}, fh, indent=1)
     print(table)
     print(f"output: {out}")
 

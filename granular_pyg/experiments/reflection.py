@@ -27,12 +27,10 @@ import csv
 import io
 import json
 import math
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import hydra
 import numpy as np
 import torch
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -42,9 +40,11 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 from tqdm.auto import tqdm
 
+from granular_pyg.cli import command
 from granular_pyg.errors import InputError, check_tensor
 from granular_pyg.geometry import canonical_normals
-from granular_pyg.io import atomic_write
+from granular_pyg.io import atomic_write, command_line, markdown_table
+from granular_pyg.progress import show_progress
 
 __all__ = [
     "KINDS",
@@ -364,7 +364,9 @@ def _train_and_evaluate(
     }
     first_models: dict[str, torch.nn.Module] = {}
     total = len(p["seeds"]) * len(p["representations"]) * p["steps"]
-    with tqdm(total=total, desc="reflection", unit="step", disable=not p["progress"]) as bar:
+    with tqdm(
+        total=total, desc="reflection", unit="step", disable=not show_progress(p["progress"])
+    ) as bar:
         for seed in p["seeds"]:
             gen = torch.Generator().manual_seed(seed)
             train = make_reflection_data(p["train_samples"], gen)
@@ -416,18 +418,22 @@ def _summarise(
 def format_table(results: dict[str, Any]) -> str:
     """Markdown table: error mean ± std per representation, same vs inverted normals."""
     n = len(results["seeds"])
-    lines = [
-        f"| representation | wall features | same normals: error (n={n} seeds) "
-        f"| inverted normals: error (n={n} seeds) |",
-        "|---|---|---|---|",
+    columns = [
+        "representation",
+        "wall features",
+        f"same normals: error (n={n} seeds)",
+        f"inverted normals: error (n={n} seeds)",
     ]
-    for kind, row in results["representations"].items():
-        same, inv = row["same"], row["inverted"]
-        lines.append(
-            f"| {kind} | `{row['features']}` | {same['mean']:.4f} ± {same['std']:.4f} "
-            f"| {inv['mean']:.4f} ± {inv['std']:.4f} |"
-        )
-    return "\n".join(lines)
+    cells = [
+        [
+            kind,
+            f"`{row['features']}`",
+            f"{row['same']['mean']:.4f} ± {row['same']['std']:.4f}",
+            f"{row['inverted']['mean']:.4f} ± {row['inverted']['std']:.4f}",
+        ]
+        for kind, row in results["representations"].items()
+    ]
+    return markdown_table(columns, cells)
 
 
 def _write_outputs(
@@ -601,10 +607,9 @@ def _arrows(colour: str, alpha: float = 1.0) -> dict[str, Any]:
     }
 
 
-@hydra.main(version_base="1.3", config_path="../../conf", config_name="reflection")
+@command("reflection")
 def main(cfg: DictConfig) -> None:
-    command = "python -m granular_pyg.experiments.reflection " + " ".join(sys.argv[1:])
-    results = run_experiment(cfg, command=command.strip())
+    results = run_experiment(cfg, command=command_line("granular_pyg.experiments.reflection"))
     print(format_table(results))
     print(f"wall time: {results['wall_time_s']:.1f} s ({len(results['seeds'])} seeds)")
     print(f"output: {cfg.out}")

@@ -1,6 +1,7 @@
-"""File formats: atomic writes, HDF5 trajectories, ParaView (VTK) export."""
+"""File formats: atomic writes, HDF5 trajectories, ParaView (VTK) export, Markdown tables."""
 
 from granular_pyg.io.atomic import atomic_path, atomic_write
+from granular_pyg.io.markdown import command_header, command_line, markdown_table
 from granular_pyg.io.trajectory import Trajectory, read_trajectory, write_trajectory
 from granular_pyg.io.vtk import export_paraview, read_vtp, write_pvd, write_vtp
 
@@ -8,7 +9,10 @@ __all__ = [
     "Trajectory",
     "atomic_path",
     "atomic_write",
+    "command_header",
+    "command_line",
     "export_paraview",
+    "markdown_table",
     "read_trajectory",
     "read_vtp",
     "write_pvd",

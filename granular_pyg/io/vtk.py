@@ -26,6 +26,7 @@ from tqdm.auto import tqdm
 from granular_pyg.errors import InputError
 from granular_pyg.io.atomic import atomic_write
 from granular_pyg.io.trajectory import Trajectory
+from granular_pyg.progress import show_progress
 
 __all__ = ["export_paraview", "read_vtp", "write_pvd", "write_vtp"]
 
@@ -198,7 +199,9 @@ def export_paraview(
             spacing = 1.2 * float(np.nanmax(x) - np.nanmin(x)) if np.isfinite(x).any() else 1.0
     combined: list[tuple[float, int, str]] = []
     total = sum(len(range(0, t.num_frames, every)) for t in trajectories.values())
-    bar = tqdm(total=total, desc="ParaView export", unit="frame", disable=not progress)
+    bar = tqdm(
+        total=total, desc="ParaView export", unit="frame", disable=not show_progress(progress)
+    )
     for i, (label, traj) in enumerate(trajectories.items()):
         if not label.isidentifier():
             raise InputError(f"trajectories: label {label!r} must be a plain name (letters, _)")

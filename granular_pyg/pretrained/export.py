@@ -12,6 +12,7 @@ from pathlib import Path
 
 import torch
 
+from granular_pyg.cli import reports_errors
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_path
 from granular_pyg.pretrained import PRETRAINED
@@ -56,6 +57,7 @@ def export(
     return out
 
 
+@reports_errors
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("ckpt")

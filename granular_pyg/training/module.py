@@ -16,9 +16,10 @@ __all__ = ["SimulatorModule"]
 
 
 class SimulatorModule(L.LightningModule):
-    """Trains a :class:`LearnedSimulator` with an :class:`~granular_pyg.training.objectives.Objective`
-    (default: the one-step MSE of the normalised acceleration of real particles), Adam and GNS's
-    exponential learning-rate decay ``lr(s) = lr_final + (lr - lr_final) * 0.1 ** (s / decay_steps)``.
+    """Trains a :class:`LearnedSimulator` with an
+    :class:`~granular_pyg.training.objectives.Objective` (default: the one-step MSE of the
+    normalised acceleration of real particles), Adam and GNS's exponential learning-rate decay
+    ``lr(s) = lr_final + (lr - lr_final) * 0.1 ** (s / decay_steps)``.
 
     The objective's randomness (which part of a Mixture a batch takes, push-forward's push) is
     drawn from a generator seeded by ``(seed, global step)``, and the RNG states (python, numpy,
