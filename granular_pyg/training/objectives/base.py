@@ -5,9 +5,18 @@ from __future__ import annotations
 import torch
 from torch_geometric.data import Batch
 
+from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
 
-__all__ = ["Objective", "masked_mse"]
+__all__ = ["Objective", "learned_steps", "masked_mse"]
+
+
+def learned_steps(name: str, value) -> int:
+    """``value`` as a whole number of learned steps >= 1, or an InputError naming ``name``."""
+    steps = int(value)
+    if steps < 1 or steps != value:
+        raise InputError(f"{name}: expected a whole number of learned steps >= 1, got {value!r}")
+    return steps
 
 
 def masked_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

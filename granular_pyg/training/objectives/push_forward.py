@@ -5,9 +5,8 @@ from __future__ import annotations
 import torch
 from torch_geometric.data import Batch
 
-from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
-from granular_pyg.training.objectives.base import Objective, masked_mse
+from granular_pyg.training.objectives.base import Objective, learned_steps, masked_mse
 
 __all__ = ["PushForward"]
 
@@ -25,9 +24,7 @@ class PushForward(Objective):
 
     def __init__(self, max_steps: int = 3, share: float = 0.5) -> None:
         super().__init__(share)
-        self.max_steps = int(max_steps)
-        if self.max_steps < 1:
-            raise InputError(f"push_forward.max_steps: expected >= 1, got {max_steps!r}")
+        self.max_steps = learned_steps("push_forward.max_steps", max_steps)
 
     @property
     def future_frames(self) -> int:

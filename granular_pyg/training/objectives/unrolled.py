@@ -7,7 +7,7 @@ from torch_geometric.data import Batch
 
 from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
-from granular_pyg.training.objectives.base import Objective, masked_mse
+from granular_pyg.training.objectives.base import Objective, learned_steps, masked_mse
 
 __all__ = ["Unrolled"]
 
@@ -27,9 +27,7 @@ class Unrolled(Objective):
 
     def __init__(self, steps: int = 4, share: float = 0.5) -> None:
         super().__init__(share)
-        self.steps = int(steps)
-        if self.steps < 1:
-            raise InputError(f"unrolled.steps: expected >= 1, got {steps!r}")
+        self.steps = learned_steps("unrolled.steps", steps)
 
     @property
     def future_frames(self) -> int:
