@@ -8,6 +8,7 @@ reads to build the paper's variant table.
 from __future__ import annotations
 
 import dataclasses
+import glob
 from pathlib import Path
 
 import numpy as np
@@ -16,13 +17,14 @@ from omegaconf import DictConfig
 
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
+from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
 from granular_pyg.evaluation.report import EvaluatedRollout
 from granular_pyg.inference import load_simulator, matching_frames, rollout_trajectory
 from granular_pyg.io import Trajectory, export_paraview, read_trajectory, write_trajectory
 
-__all__ = ["evaluate"]
+__all__ = ["evaluate", "selected_files"]
 
 #: Scalars printed to the console (the report has them all).
 CONSOLE = ("emd_mean", "discharge_rate_rel_error", "angle_of_repose_error_deg", "leaked_particles")
@@ -37,9 +39,8 @@ def evaluate(cfg: DictConfig) -> Path:
     sample = cfg.sample if cfg.root or cfg.sample else data.get("sample")
     out = Path(cfg.out)
     rollouts = []
-    for split in cfg.splits:
-        files = load_split(root, sample, split)[: cfg.max_trajectories]
-        for file in files:
+    for split, files in selected_files(cfg, root, sample).items():
+        for file in files[: cfg.max_trajectories]:
             truth = read_trajectory(file)
             pred = rollout_trajectory(
                 sim,
@@ -85,9 +86,40 @@ def evaluate(cfg: DictConfig) -> Path:
     return report
 
 
+def selected_files(cfg: DictConfig, root: str | None, sample: str | None) -> dict[str, list[Path]]:
+    """The trajectories to evaluate, by split: ``cfg.trajectories`` (HDF5 files or glob
+    patterns, under the label ``files``) when given, else ``cfg.splits`` of the dataset folder
+    ``root`` (its ``manifest.json``) or of the bundled ``sample``.
+
+    Raises:
+        InputError: a pattern that matches no file, or ``root`` naming a file, not a folder.
+    """
+    if cfg.get("trajectories"):
+        patterns = cfg.trajectories
+        patterns = [patterns] if isinstance(patterns, str) else list(patterns)
+        files = []
+        for pattern in map(str, patterns):
+            found = sorted(Path(p) for p in glob.glob(pattern))
+            if not found:
+                raise InputError(f"trajectories: {pattern!r} matches no file")
+            files += [f for f in found if f not in files]
+        return {"files": files}
+    if root is not None and Path(root).is_file():
+        raise InputError(
+            f"root: {root} is a file; root is a dataset folder with a manifest.json "
+            f"(docs/data.md). For single files: trajectories='[{root}]'"
+        )
+    return {split: load_split(root, sample, split) for split in cfg.splits}
+
+
 def _command(cfg: DictConfig) -> str:
     """The command line that reproduces this evaluation (also when called from Python)."""
-    parts = [f"ckpt={cfg.ckpt}", f"splits=[{','.join(cfg.splits)}]"]
+    parts = [f"ckpt={cfg.ckpt}"]
+    if cfg.get("trajectories"):
+        listed = [cfg.trajectories] if isinstance(cfg.trajectories, str) else cfg.trajectories
+        parts.append(f"'trajectories=[{','.join(map(str, listed))}]'")
+    else:
+        parts.append(f"splits=[{','.join(cfg.splits)}]")
     for key in ("root", "sample", "max_trajectories", "steps", "skin"):
         if cfg[key] is not None:
             parts.append(f"{key}={cfg[key]}")

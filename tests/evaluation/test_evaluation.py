@@ -191,3 +191,24 @@ def test_variant_figures_plot_the_truth_and_each_variants_first_run(tmp_path, ho
     assert np.array_equal(truth_z, v3_z, equal_nan=True)  # V3 is the truth itself
     with pytest.raises(InputError, match="at least one variant"):
         variants_figure({})
+
+
+def test_evaluate_selects_files_by_glob_or_by_split(tmp_path):
+    from granular_pyg.config import compose
+    from granular_pyg.evaluate import selected_files
+    from granular_pyg.samples import SAMPLES_DIR
+
+    hoppers = str(SAMPLES_DIR / "hopper" / "traj_000[12].h5")
+    cfg = compose("evaluate", ["ckpt=x", f"trajectories=['{hoppers}']", "out=."])
+    files = selected_files(cfg, None, "hopper")
+    assert list(files) == ["files"] and [f.name for f in files["files"]] == [
+        "traj_0001.h5",
+        "traj_0002.h5",
+    ]
+    by_split = selected_files(compose("evaluate", ["ckpt=x", "out=."]), None, "hopper")
+    assert list(by_split) == ["test"] and len(by_split["test"]) == 1
+    with pytest.raises(InputError, match="matches no file"):
+        selected_files(compose("evaluate", ["ckpt=x", "trajectories=[nothing*.h5]"]), None, None)
+    one = SAMPLES_DIR / "hopper" / "traj_0000.h5"
+    with pytest.raises(InputError, match=r"is a file; .*trajectories="):
+        selected_files(compose("evaluate", ["ckpt=x"]), str(one), None)
