@@ -8,7 +8,19 @@ box floor is the outflow plane.
 
 Phases: fill and settle for ``scene.settle_time`` (not recorded), then ``reset_timestep 0`` and
 record a frame every ``scene.frame_dt`` for ``scene.duration``, splitting the run at every wall
-event (a removal or the start of a rotation).
+event (a removal, or the start or stop of a motion).
+
+Wall motions map onto ``fix move/mesh`` styles: ``rotation`` -> ``rotate``, ``translation`` ->
+``linear``, ``oscillation`` -> ``wiggle``. A motion fix is created at the motion's start time
+and unfixed at its stop time (or just before its wall is removed); an unfixed mesh keeps the pose
+it reached. Measured with ``dump mesh/stl`` (LIGGGHTS 3.8.0, ``tests/scenes/test_mesh_scene.py``):
+the mesh follows :meth:`~granular_pyg.scenes.WallMotion.pose` across run splits and stops;
+``linear`` and ``rotate`` to round-off, ``wiggle`` within ``amplitude * 2 pi / period * dem_dt``
+(LIGGGHTS sums velocity x step, a half-step phase lead: 1.9e-5 m for 2 mm at 75 Hz).
+
+Particle sizes: one ``particletemplate/sphere`` per radius and a
+``particledistribution/discrete/numberbased`` over them (a single radius keeps the historical
+``particledistribution/discrete`` line). The insertion region is a ``block`` or a ``cylinder z``.
 """
 
 from __future__ import annotations
@@ -29,7 +41,7 @@ from tqdm.auto import tqdm
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_write
 from granular_pyg.progress import show_progress
-from granular_pyg.scenes import Scene, Wall
+from granular_pyg.scenes import ParticleSpec, Scene, Wall
 
 __all__ = [
     "DemRun",
@@ -133,16 +145,7 @@ def _check_scene(scene: Scene) -> None:
     lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
     for wall in scene.walls:
         check_wall_for_liggghts(wall)
-        vlo, vhi = wall.vertices.min(0), wall.vertices.max(0)
-        if wall.motion.kind == "rotation":
-            # Every pose lies within the circles the vertices sweep about the axis.
-            axis = np.asarray(wall.motion.axis, float)
-            axis /= np.linalg.norm(axis)
-            rel = wall.vertices - np.asarray(wall.motion.origin)
-            centres = np.asarray(wall.motion.origin) + np.outer(rel @ axis, axis)
-            radial = np.linalg.norm(wall.vertices - centres, axis=1).max()
-            reach = radial * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
-            vlo, vhi = centres.min(0) - reach, centres.max(0) + reach
+        vlo, vhi = wall.swept_bounds(scene.duration)
         if (vlo < lo - 1e-12).any() or (vhi > hi + 1e-12).any():
             raise InputError(
                 f"wall {wall.name} leaves the simulation box {scene.domain_lo}..{scene.domain_hi}; "
@@ -168,8 +171,9 @@ def _insertion(scene: Scene) -> tuple[float, int]:
     """Particle rate (1/s) and steps between insertions: the fill takes ~40% of the settle
     time, in batches of at most 15% of the fill box's volume."""
     p, dt = scene.particles, scene.dem_dt
-    fill_volume = float(np.prod(np.asarray(p.fill_hi) - np.asarray(p.fill_lo)))
-    batch_max = max(1, int(0.15 * fill_volume / (4.0 / 3.0 * math.pi * p.radius**3)))
+    fill_volume = p.fill_volume
+    particle_volume = 4.0 / 3.0 * math.pi * p.radius**3 if p.radii is None else p.mean_volume
+    batch_max = max(1, int(0.15 * fill_volume / particle_volume))
     fill_time = 0.4 * scene.settle_time
     batches = max(1, math.ceil(p.count / batch_max))
     every = max(1, _steps(fill_time / batches, dt))
@@ -189,33 +193,90 @@ def _wall_fix(scene: Scene, t: float) -> list[str]:
     ]
 
 
+def _move_style(wall: Wall) -> str | None:
+    """The ``fix move/mesh`` style and arguments of the wall's motion; None if it never moves."""
+    m = wall.motion
+    if m.kind == "rotation" and m.omega != 0.0:
+        axis = np.asarray(m.axis, float) * np.sign(m.omega)
+        period = 2 * math.pi / abs(m.omega)
+        return f"rotate origin {_fmt(m.origin)} axis {_fmt(axis)} period {period!r}"
+    if m.kind == "translation" and any(m.velocity):
+        return f"linear {_fmt(m.velocity)}"
+    if m.kind == "oscillation" and any(m.amplitude):
+        return f"wiggle amplitude {_fmt(m.amplitude)} period {float(m.period)!r}"
+    return None
+
+
 def _events(scene: Scene) -> list[tuple[float, list[str]]]:
-    """Wall events in recorded time, each with the commands that enact it."""
-    events: dict[float, list[str]] = {}
+    """Wall events in recorded time, each with the commands that enact it.
+
+    At one time: motions stop, then motions start, then walls are removed (a moving wall's
+    motion fix is unfixed before its mesh) and the wall fix is re-created.
+    """
+    stops: dict[float, list[str]] = {}
+    starts: dict[float, list[str]] = {}
+    removals: dict[float, list[str]] = {}
     for wall in scene.walls:
-        m = wall.motion
-        if m.kind == "rotation" and m.omega != 0.0:
-            axis = np.asarray(m.axis, float) * np.sign(m.omega)
-            period = 2 * math.pi / abs(m.omega)
-            cmd = (
-                f"fix move_{wall.name} all move/mesh mesh wall_{wall.name} rotate origin "
-                f"{_fmt(m.origin)} axis {_fmt(axis)} period {period!r}"
-            )
-            events.setdefault(max(0.0, m.start_time), []).append(cmd)
+        style = _move_style(wall)
+        if style is None:
+            continue
+        m, gone = wall.motion, wall.removal_time
+        start = max(0.0, m.start_time)
+        if gone is not None and start >= gone:
+            continue  # removed before it would move
+        starts.setdefault(start, []).append(
+            f"fix move_{wall.name} all move/mesh mesh wall_{wall.name} {style}"
+        )
+        stop = m.stop_time
+        if gone is not None and (stop is None or stop > gone):
+            stop = gone
+        if stop is not None and stop < scene.duration:
+            stops.setdefault(stop, []).append(f"unfix move_{wall.name}")
     for wall in scene.walls:
         if wall.removal_time is not None:
-            t = wall.removal_time
-            cmds = events.setdefault(t, [])
-            cmds += ["unfix walls", f"unfix wall_{wall.name}"]
-    # Re-create the single wall fix after any removal at that time.
-    for t, cmds in events.items():
-        if any(c.startswith("unfix walls") for c in cmds):
-            cmds += _wall_fix(scene, t)
+            removals.setdefault(wall.removal_time, []).extend(
+                ["unfix walls", f"unfix wall_{wall.name}"]
+            )
+    events: dict[float, list[str]] = {}
+    for t in sorted(set(stops) | set(starts) | set(removals)):
+        events[t] = stops.get(t, []) + starts.get(t, []) + removals.get(t, [])
+        # Re-create the single wall fix after any removal at that time.
+        if t in removals:
+            events[t] += _wall_fix(scene, t)
     return sorted(events.items())
 
 
 def _fmt(values) -> str:
     return " ".join(repr(float(v)) for v in values)
+
+
+def _particle_lines(
+    p: ParticleSpec, density: float, template_seeds: list[int], distribution_seed: int
+) -> list[str]:
+    """Templates ``pts`` (``pts_2``, ...), the distribution ``pdd`` and the region ``fill``."""
+    radii, fractions = p.size_distribution
+    names = ["pts", *(f"pts_{k}" for k in range(2, len(radii) + 1))]
+    lines = [
+        f"fix {name} all particletemplate/sphere {seed} atom_type 1 density constant "
+        f"{density!r} radius constant {r!r}"
+        for name, seed, r in zip(names, template_seeds, radii, strict=True)
+    ]
+    if p.radii is None:
+        lines.append(f"fix pdd all particledistribution/discrete {distribution_seed} 1 pts 1.0")
+    else:
+        pairs = " ".join(f"{n} {f!r}" for n, f in zip(names, fractions, strict=True))
+        lines.append(
+            f"fix pdd all particledistribution/discrete/numberbased {distribution_seed} "
+            f"{len(radii)} {pairs}"
+        )
+    if p.fill_shape == "cylinder":
+        cx, cy, r, z_lo, z_hi = p.cylinder
+        lines.append(f"region fill cylinder z {_fmt((cx, cy, r, z_lo, z_hi))} units box")
+    else:
+        lines.append(
+            f"region fill block {_fmt(np.ravel(np.stack([p.fill_lo, p.fill_hi], 1)))} units box"
+        )
+    return lines
 
 
 def render_input(scene: Scene, seed: int, thermo_every: int | None = None) -> str:
@@ -231,7 +292,8 @@ def render_input(scene: Scene, seed: int, thermo_every: int | None = None) -> st
     record_steps = _steps(scene.duration, dt)
     frame_steps = _steps(scene.frame_dt, dt)
     thermo_every = thermo_every or max(1, (settle_steps + record_steps) // 400)
-    s_template, s_distribution, s_insert = prime_seeds(seed)
+    num_sizes = len(p.size_distribution[0])
+    s_template, s_distribution, s_insert, *s_more = prime_seeds(seed, 2 + num_sizes)
     rate, every = _insertion(scene)
     g = np.asarray(scene.gravity, float)
     g_norm = float(np.linalg.norm(g))
@@ -268,11 +330,8 @@ def render_input(scene: Scene, seed: int, thermo_every: int | None = None) -> st
     ]
     lines += [f"fix wall_{w.name} all mesh/surface file {w.name}.stl type 1" for w in scene.walls]
     lines += _wall_fix(scene, 0.0)
+    lines += _particle_lines(p, m.density, [s_template, *s_more], s_distribution)
     lines += [
-        f"fix pts all particletemplate/sphere {s_template} atom_type 1 density constant "
-        f"{m.density!r} radius constant {p.radius!r}",
-        f"fix pdd all particledistribution/discrete {s_distribution} 1 pts 1.0",
-        f"region fill block {_fmt(np.ravel(np.stack([p.fill_lo, p.fill_hi], 1)))} units box",
         f"fix ins all insert/rate/region seed {s_insert} distributiontemplate pdd "
         f"nparticles {p.count} particlerate {rate!r} insert_every {every} "
         f"overlapcheck yes all_in yes vel constant {_fmt(INSERT_SPEED * g_unit)} region fill",

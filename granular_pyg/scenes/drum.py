@@ -109,6 +109,7 @@ def make_drum(
     }
     return Scene(
         name="drum",
+        kind="drum",
         walls=[
             Wall(
                 "drum",

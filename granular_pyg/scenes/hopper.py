@@ -156,6 +156,7 @@ def make_hopper(
     }
     return Scene(
         name="hopper",
+        kind="hopper",
         walls=[
             Wall("hopper", hopper.vertices, hopper.faces),
             Wall("lid", lid.vertices, lid.faces, removal_time=t_open),

@@ -1,10 +1,11 @@
 """The Scene: the single description of a set-up, shared by LIGGGHTS and the learned simulator.
 
-A :class:`Scene` holds named triangle-mesh walls, each with a motion (static or a rigid rotation)
-and an optional removal time, the particles to insert, gravity, the outflow rule, the materials
-and the DEM/recording times. ``granular_pyg.dem`` renders it into a LIGGGHTS input script;
-``granular_pyg.simulator`` rolls the learned model out over the same Scene, so the two can never
-disagree about geometry.
+A :class:`Scene` holds named triangle-mesh walls, each with a motion (static, or a rigid rotation,
+translation or oscillation: :class:`WallMotion`) and an optional removal time, the particles to
+insert (one radius or a discrete size distribution, in a box or a vertical cylinder), gravity,
+the outflow rule, the materials, the DEM/recording times and the set-up's ``kind``.
+``granular_pyg.dem`` renders it into a LIGGGHTS input script; ``granular_pyg.simulator`` rolls
+the learned model out over the same Scene, so the two can never disagree about geometry.
 
 Time convention: ``t = 0`` is the first recorded frame. LIGGGHTS first fills and settles the
 particles for ``settle_time`` seconds (not recorded) with every wall at its ``t = 0`` pose;
@@ -26,19 +27,48 @@ import numpy as np
 
 from granular_pyg.errors import InputError
 
-__all__ = ["Materials", "ParticleSpec", "Scene", "Wall", "WallMotion"]
+__all__ = [
+    "FILL_SHAPES",
+    "MOTION_KINDS",
+    "SCENE_KINDS",
+    "Materials",
+    "ParticleSpec",
+    "Scene",
+    "Wall",
+    "WallMotion",
+]
+
+
+#: Motions a wall can have; each maps onto one ``fix move/mesh`` style in LIGGGHTS.
+MOTION_KINDS = ("static", "rotation", "translation", "oscillation")
+#: Scene kinds: the two reference set-ups, or anything else.
+SCENE_KINDS = ("hopper", "drum", "other")
 
 
 @dataclass(frozen=True)
 class WallMotion:
-    """Rigid motion of a wall: static, or rotation about ``axis`` through ``origin``.
+    """Rigid motion of a wall, in recorded time; each kind is one LIGGGHTS ``fix move/mesh``.
+
+    * ``static``: never moves.
+    * ``rotation`` (``rotate``): about ``axis`` through ``origin`` at ``omega``.
+    * ``translation`` (``linear``): at the constant ``velocity``.
+    * ``oscillation`` (``wiggle``): displacement ``amplitude * sin(2 pi (t - start_time) /
+      period)``.
+
+    Every motion starts at ``start_time`` (the wall rests at its mesh pose before) and, when
+    ``stop_time`` is given, stops there and keeps the pose it reached. Fields that do not belong
+    to the kind are ignored (their defaults are stored).
 
     Attributes:
-        kind: ``"static"`` or ``"rotation"``.
-        axis: rotation axis (unit vector after normalisation), right-handed.
-        origin: a point on the axis (m).
+        kind: one of :data:`MOTION_KINDS`.
+        axis: rotation axis ``[3]`` (unit vector after normalisation), right-handed.
+        origin: a point on the rotation axis ``[3]`` (m).
         omega: angular velocity (rad/s), the sign follows the right-hand rule about ``axis``.
-        start_time: recorded time (s) at which the rotation starts.
+        start_time: recorded time (s, >= 0) at which the motion starts.
+        velocity: translation velocity ``[3]`` (m/s).
+        amplitude: oscillation amplitude ``[3]`` (m).
+        period: oscillation period (s, > 0 for an oscillation).
+        stop_time: recorded time (s, > start_time) at which the motion stops, or None (never).
     """
 
     kind: str = "static"
@@ -46,22 +76,63 @@ class WallMotion:
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     omega: float = 0.0
     start_time: float = 0.0
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    amplitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    period: float = 0.0
+    stop_time: float | None = None
 
     def __post_init__(self) -> None:
-        if self.kind not in ("static", "rotation"):
-            raise InputError(f"motion.kind: expected 'static' or 'rotation', got {self.kind!r}")
+        if self.kind not in MOTION_KINDS:
+            raise InputError(f"motion.kind: expected one of {MOTION_KINDS}, got {self.kind!r}")
+        for name in ("axis", "origin", "velocity", "amplitude"):
+            value = np.asarray(getattr(self, name), float)
+            if value.shape != (3,) or not np.isfinite(value).all():
+                raise InputError(
+                    f"motion.{name}: expected 3 finite numbers, got {getattr(self, name)!r}"
+                )
+            object.__setattr__(self, name, tuple(float(v) for v in value))
         if self.kind == "rotation" and not np.any(np.asarray(self.axis, float)):
             raise InputError("motion.axis: a rotation needs a non-zero axis")
+        if not (math.isfinite(self.start_time) and self.start_time >= 0):
+            raise InputError(
+                f"motion.start_time: expected a recorded time >= 0 s, got {self.start_time}"
+            )
+        if self.stop_time is not None and not self.stop_time > self.start_time:
+            raise InputError(
+                f"motion.stop_time ({self.stop_time} s) must come after start_time "
+                f"({self.start_time} s); use None for a motion that never stops"
+            )
+        if self.kind == "oscillation" and not (math.isfinite(self.period) and self.period > 0):
+            raise InputError(
+                f"motion.period: an oscillation needs a positive period (s), got {self.period}"
+            )
+
+    def _elapsed(self, t: float) -> float:
+        """Time (s) the motion has run by recorded time ``t``."""
+        if self.stop_time is not None:
+            t = min(t, self.stop_time)
+        return max(0.0, t - self.start_time)
+
+    def active(self, t: float) -> bool:
+        """Whether the wall is moving at recorded time ``t`` (s): ``start <= t < stop``."""
+        if self.kind == "static" or t < self.start_time:
+            return False
+        return self.stop_time is None or t < self.stop_time
 
     def angle(self, t: float) -> float:
-        """Rotation angle (rad) at recorded time ``t`` (s)."""
-        if self.kind == "static":
+        """Rotation angle (rad) at recorded time ``t`` (s); 0 for other kinds."""
+        if self.kind != "rotation":
             return 0.0
-        return self.omega * max(0.0, t - self.start_time)
+        return self.omega * self._elapsed(t)
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Pose at recorded time ``t`` (s): ``(rotation [3, 3], translation [3])`` with
         ``x_world = rotation @ x_mesh + translation``."""
+        if self.kind == "translation":
+            return np.eye(3), np.asarray(self.velocity, float) * self._elapsed(t)
+        if self.kind == "oscillation":
+            phase = 2 * math.pi * self._elapsed(t) / self.period
+            return np.eye(3), np.asarray(self.amplitude, float) * math.sin(phase)
         angle = self.angle(t)
         if angle == 0.0:
             return np.eye(3), np.zeros(3)
@@ -71,6 +142,51 @@ class WallMotion:
         rot = np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)
         origin = np.asarray(self.origin, float)
         return rot, origin - rot @ origin
+
+    def linear_velocity(self, t: float) -> np.ndarray:
+        """``[3]`` velocity (m/s) of every point of a translating or oscillating wall at
+        recorded time ``t`` (s); zeros when the wall rests or rotates (see
+        :meth:`point_velocities`)."""
+        if not self.active(t):
+            return np.zeros(3)
+        if self.kind == "translation":
+            return np.asarray(self.velocity, float)
+        if self.kind == "oscillation":
+            rate = 2 * math.pi / self.period
+            return np.asarray(self.amplitude, float) * rate * math.cos(rate * self._elapsed(t))
+        return np.zeros(3)
+
+    def point_velocities(self, points: np.ndarray, t: float) -> np.ndarray:
+        """``[P, 3]`` velocity (m/s) at recorded time ``t`` (s) of the wall points at world
+        positions ``points [P, 3]`` (m)."""
+        points = np.asarray(points, float)
+        if self.kind == "rotation" and self.active(t):
+            axis = np.asarray(self.axis, float)
+            omega = self.omega * axis / np.linalg.norm(axis)
+            return np.cross(omega, points - np.asarray(self.origin, float))
+        return np.broadcast_to(self.linear_velocity(t), points.shape).copy()
+
+    def swept_bounds(self, vertices: np.ndarray, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo [3], hi [3])`` (m): a box holding ``vertices [V, 3]`` (mesh frame, m) at every
+        pose in the recorded times ``[0, t_end]`` (s); conservative for rotations and
+        oscillations."""
+        lo, hi = vertices.min(0), vertices.max(0)
+        if self.kind == "rotation":
+            # Every pose lies within the circles the vertices sweep about the axis.
+            axis = np.asarray(self.axis, float)
+            axis /= np.linalg.norm(axis)
+            rel = vertices - np.asarray(self.origin)
+            centres = np.asarray(self.origin) + np.outer(rel @ axis, axis)
+            radial = np.linalg.norm(vertices - centres, axis=1).max()
+            reach = radial * np.sqrt(np.clip(1.0 - axis**2, 0.0, 1.0))
+            return centres.min(0) - reach, centres.max(0) + reach
+        if self.kind == "translation":
+            _, shift = self.pose(t_end)
+            return np.minimum(lo, lo + shift), np.maximum(hi, hi + shift)
+        if self.kind == "oscillation":
+            reach = np.abs(np.asarray(self.amplitude, float))
+            return lo - reach, hi + reach
+        return lo, hi
 
 
 @dataclass
@@ -123,6 +239,13 @@ class Wall:
         rot, shift = self.motion.pose(t)
         return self.vertices @ rot.T + shift
 
+    def swept_bounds(self, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(lo [3], hi [3])`` (m): a box holding the wall at every pose it takes while present
+        in the recorded times ``[0, t_end]`` (s); see :meth:`WallMotion.swept_bounds`."""
+        if self.removal_time is not None:
+            t_end = min(t_end, self.removal_time)
+        return self.motion.swept_bounds(self.vertices, max(0.0, t_end))
+
 
 @dataclass(frozen=True)
 class Materials:
@@ -136,14 +259,131 @@ class Materials:
     density: float = 2500.0  # kg/m^3
 
 
+#: Shapes of the insertion region.
+FILL_SHAPES = ("box", "cylinder")
+
+
 @dataclass(frozen=True)
 class ParticleSpec:
-    """Particles to insert: ``count`` spheres of ``radius`` (m) in the box ``fill_lo..fill_hi``."""
+    """Particles to insert: ``count`` spheres rained into a region.
+
+    Sizes: one ``radius`` (m), or a discrete distribution: ``radii`` (m) drawn with the number
+    fractions ``radius_weights`` (normalised; equal when omitted), in which case ``radius`` is the
+    largest of ``radii``.
+
+    Region: ``fill_lo..fill_hi`` (m) is always its bounding box. ``fill_shape = "box"`` fills
+    that box; ``"cylinder"`` fills the cylinder inscribed in it: axis along z through the box's
+    x-y centre, radius half its x (= y) extent, from ``fill_lo`` z to ``fill_hi`` z (see
+    :meth:`cylinder` and :meth:`cylinder_region`).
+
+    Attributes:
+        count: number of particles.
+        radius: the particle radius (m); the largest radius for a distribution.
+        fill_lo, fill_hi: ``[3]`` corners of the region's bounding box (m).
+        radii: ``[K]`` radii (m) of a discrete size distribution, or None.
+        radius_weights: ``[K]`` number fractions of ``radii`` (any positive scale), or None.
+        fill_shape: one of :data:`FILL_SHAPES`.
+    """
 
     count: int
     radius: float
     fill_lo: tuple[float, float, float]
     fill_hi: tuple[float, float, float]
+    radii: tuple[float, ...] | None = None
+    radius_weights: tuple[float, ...] | None = None
+    fill_shape: str = "box"
+
+    def __post_init__(self) -> None:
+        if self.fill_shape not in FILL_SHAPES:
+            raise InputError(
+                f"particles.fill_shape: expected one of {FILL_SHAPES}, got {self.fill_shape!r}"
+            )
+        if self.fill_shape == "cylinder":
+            ext = np.asarray(self.fill_hi, float) - np.asarray(self.fill_lo, float)
+            if not math.isclose(ext[0], ext[1], rel_tol=1e-9, abs_tol=1e-15):
+                raise InputError(
+                    f"particles: a cylinder region needs a square x-y bounding box, got x extent "
+                    f"{ext[0]} m and y extent {ext[1]} m; build it with "
+                    "ParticleSpec.cylinder_region(...)"
+                )
+        if self.radii is None:
+            if self.radius_weights is not None:
+                raise InputError("particles.radius_weights: given without particles.radii")
+            return
+        radii = tuple(float(r) for r in self.radii)
+        if not radii or not all(math.isfinite(r) and r > 0 for r in radii):
+            raise InputError(f"particles.radii: expected positive radii (m), got {self.radii}")
+        weights = self.radius_weights
+        weights = (1.0,) * len(radii) if weights is None else tuple(float(w) for w in weights)
+        if len(weights) != len(radii) or not all(math.isfinite(w) and w > 0 for w in weights):
+            raise InputError(
+                f"particles.radius_weights: expected {len(radii)} positive number fractions "
+                f"(one per radius in {radii}), got {self.radius_weights}"
+            )
+        if self.radius != max(radii):
+            raise InputError(
+                f"particles.radius ({self.radius} m) must be the largest of radii {radii}"
+            )
+        object.__setattr__(self, "radii", radii)
+        object.__setattr__(self, "radius_weights", weights)
+
+    @classmethod
+    def cylinder_region(
+        cls,
+        count: int,
+        radius: float,
+        centre: tuple[float, float],
+        cylinder_radius: float,
+        z_range: tuple[float, float],
+        **sizes: Any,
+    ) -> ParticleSpec:
+        """A spec that fills the vertical cylinder of ``cylinder_radius`` (m) about the axis
+        through ``centre`` ``[2]`` (x, y, m) between the heights ``z_range`` ``[2]`` (m);
+        ``sizes`` are ``radii`` / ``radius_weights``."""
+        cx, cy = (float(c) for c in centre)
+        r = float(cylinder_radius)
+        return cls(
+            count=int(count),
+            radius=float(radius),
+            fill_lo=(cx - r, cy - r, float(z_range[0])),
+            fill_hi=(cx + r, cy + r, float(z_range[1])),
+            fill_shape="cylinder",
+            **sizes,
+        )
+
+    @property
+    def cylinder(self) -> tuple[float, float, float, float, float]:
+        """``(centre x, centre y, radius, z low, z high)`` (m) of the cylinder region."""
+        lo, hi = self.fill_lo, self.fill_hi
+        return (
+            0.5 * (lo[0] + hi[0]),
+            0.5 * (lo[1] + hi[1]),
+            0.5 * (hi[0] - lo[0]),
+            float(lo[2]),
+            float(hi[2]),
+        )
+
+    @property
+    def size_distribution(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """``(radii [K] (m), number fractions [K] summing to 1)``; one entry for one radius."""
+        if self.radii is None:
+            return (float(self.radius),), (1.0,)
+        total = sum(self.radius_weights)
+        return self.radii, tuple(w / total for w in self.radius_weights)
+
+    @property
+    def fill_volume(self) -> float:
+        """Volume of the insertion region (m^3)."""
+        ext = np.asarray(self.fill_hi, float) - np.asarray(self.fill_lo, float)
+        if self.fill_shape == "cylinder":
+            return float(math.pi * (0.5 * ext[0]) ** 2 * ext[2])
+        return float(np.prod(ext))
+
+    @property
+    def mean_volume(self) -> float:
+        """Mean particle volume (m^3) over the size distribution."""
+        radii, fractions = self.size_distribution
+        return sum(f * 4.0 / 3.0 * math.pi * r**3 for r, f in zip(radii, fractions, strict=True))
 
 
 @dataclass
@@ -151,7 +391,7 @@ class Scene:
     """A complete set-up; see the module docstring for the time and outflow conventions.
 
     Attributes:
-        name: scene kind, e.g. ``"hopper"`` or ``"drum"``.
+        name: the scene's name, e.g. ``"hopper"``, ``"drum"`` or ``"mesh_silo"``.
         walls: the meshes.
         particles: what to insert.
         materials: contact parameters.
@@ -164,6 +404,10 @@ class Scene:
         duration: recorded time (s).
         frame_dt: time between recorded frames (s), a multiple of ``dem_dt``.
         params: the scene parameters it was built from (alpha, opening, omega, ...).
+        kind: what the set-up is, one of :data:`SCENE_KINDS`: ``"hopper"`` (particles drain
+            through an outlet), ``"drum"`` (a closed rotating container) or ``"other"``. None
+            (the default) takes ``name`` when it is ``"hopper"`` or ``"drum"``, else
+            ``"other"``, so scenes stored before the field existed load unchanged.
     """
 
     name: str
@@ -179,8 +423,15 @@ class Scene:
     duration: float = 1.0
     frame_dt: float = 2.5e-3
     params: dict[str, Any] = field(default_factory=dict)
+    kind: str | None = None
 
     def __post_init__(self) -> None:
+        if self.kind is None:
+            self.kind = self.name if self.name in ("hopper", "drum") else "other"
+        if self.kind not in SCENE_KINDS:
+            raise InputError(
+                f"scene {self.name}: kind must be one of {SCENE_KINDS}, got {self.kind!r}"
+            )
         names = [w.name for w in self.walls]
         if len(set(names)) != len(names):
             raise InputError(f"scene {self.name}: wall names must be unique, got {names}")

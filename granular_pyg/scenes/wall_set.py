@@ -50,7 +50,8 @@ class WallContacts(NamedTuple):
 
 class WallSet:
     """One :class:`~granular_pyg.geometry.WallIndex` per wall, built once; poses, removals and
-    wall velocities follow the walls' motions at the query time.
+    wall velocities follow the walls' motions at the query time (every
+    :class:`~granular_pyg.scenes.WallMotion` kind: rotation, translation, oscillation).
 
     Args:
         walls: a Scene or its list of walls.
@@ -93,11 +94,15 @@ class WallSet:
             normal = normals[found.tri_idx].to(dtype) @ rot.T
             velocity = torch.zeros_like(found.closest)
             m = wall.motion
-            if m.kind == "rotation" and time >= m.start_time and m.omega != 0.0:
+            if m.kind == "rotation" and m.active(time) and m.omega != 0.0:
                 axis = torch.tensor(m.axis, dtype=dtype)
                 omega = m.omega * axis / torch.linalg.vector_norm(axis)
                 arm = found.closest - torch.tensor(m.origin, dtype=dtype)
                 velocity = torch.linalg.cross(omega.expand_as(arm), arm)
+            elif m.kind in ("translation", "oscillation") and m.active(time):
+                # A rigid shift: every point of the wall moves with the same velocity.
+                shift_rate = torch.from_numpy(m.linear_velocity(time)).to(dtype)
+                velocity = shift_rate.expand_as(found.closest).clone()
             parts.append((found.point_idx, found.tri_idx + offset, found.closest, normal, velocity))
         if not parts:
             empty = torch.zeros(0, dtype=torch.int64)
