@@ -15,6 +15,20 @@ class InputError(ValueError):
     """Bad user input (wrong shape or dtype, NaN/Inf, degenerate or empty data)."""
 
 
+def whole_number(name: str, value, minimum: int = 0) -> int:
+    """``value`` as an int ``>= minimum``: an int, or a float with no fractional part (``1e3``).
+
+    Raises:
+        InputError: naming ``name`` and the value (``2.7``, ``"abc"``, ``-1``, ``True``).
+    """
+    ok = isinstance(value, int) and not isinstance(value, bool)
+    if isinstance(value, float) and value.is_integer():
+        value, ok = int(value), True
+    if not ok or value < minimum:
+        raise InputError(f"{name}: expected a whole number >= {minimum}, got {value!r}")
+    return value
+
+
 class NonFiniteError(ArithmeticError):
     """A learned step predicted NaN or Inf for a particle that had not left.
 

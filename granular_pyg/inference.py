@@ -11,6 +11,7 @@ every metric, plot and export takes both.
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-from granular_pyg.errors import InputError, NonFiniteError
+from granular_pyg.errors import InputError, NonFiniteError, whole_number
 from granular_pyg.io import Trajectory
 from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.scenes import WallSet
@@ -119,6 +120,7 @@ def rollout_trajectory(
     dtype: torch.dtype = torch.float32,
     skin: float | None = None,
     wall_guard: bool = False,
+    stop_when_empty: bool = False,
 ) -> Trajectory:
     """Roll ``sim`` out over ``truth``'s Scene from its ground-truth initial states.
 
@@ -134,6 +136,8 @@ def rollout_trajectory(
         wall_guard: end every move that would carry a centre through a wall at the wall, one
             particle radius from it (:class:`~granular_pyg.simulator.WallGuard`); the metadata
             counts the corrections (``wall_guard_corrections``, particle-steps).
+        stop_when_empty: end the rollout after the step that leaves no particle in the scene
+            (metadata ``stopped_empty``: the steps taken).
 
     Returns:
         A Trajectory with ``H + 1 + steps`` frames every ``k`` saved frames from
@@ -142,15 +146,15 @@ def rollout_trajectory(
         (m/s); metadata records the rollout's settings.
 
     Raises:
-        InputError: no Scene, too few initial frames, a bad ``steps``.
+        InputError: no Scene, too few initial frames, a bad ``steps`` (not a whole number,
+            negative, or more than the memory can hold).
         NonFiniteError: the model predicted NaN/Inf; its ``partial`` attribute holds the
             Trajectory up to the failing step (metadata ``failed_step``), nothing is lost.
     """
     k, initial = initial_frames(sim, truth, start_frame)
     available = (truth.num_frames - 1 - initial[-1]) // k
-    steps = available if steps is None else int(steps)
-    if steps < 0:
-        raise InputError(f"steps: expected a non-negative number of steps, got {steps}")
+    steps = available if steps is None else whole_number("steps", steps)
+    _check_fits_in_memory(steps, truth.num_particles, dtype)
     seq = torch.from_numpy(truth.positions[initial]).to(sim.dt.device, dtype)
     seq = seq.permute(1, 0, 2).contiguous()
     dt = float(sim.dt)
@@ -158,9 +162,22 @@ def rollout_trajectory(
     settings = {"start_frame": int(start_frame), "dtype": str(dtype).removeprefix("torch.")}
     settings |= {"skin": skin, "time_step_multiple": k, "wall_guard": bool(wall_guard)}
     guard = WallGuard(torch.from_numpy(truth.radii).double()) if wall_guard else None
+    outflow = truth.scene.outflow_z
+    stopped = []
+
+    def stop_if_empty(s: int, t: float, seq: torch.Tensor, nxt: torch.Tensor) -> bool:
+        left = torch.isfinite(nxt).all(1)
+        if outflow is not None:
+            left &= nxt[:, 2] >= outflow
+        if not bool(left.any()):
+            stopped.append(s + 1)
+            return True
+        return False
+
+    check = stop_if_empty if stop_when_empty else None
     try:
         pred = sim.rollout(
-            seq, WallSet(truth.scene), t0, steps, truth.scene.outflow_z, progress, skin, guard
+            seq, WallSet(truth.scene), t0, steps, outflow, progress, skin, guard, check
         )
     except NonFiniteError as exc:
         done = exc.positions_so_far
@@ -168,7 +185,27 @@ def rollout_trajectory(
         raise
     if guard is not None:
         settings["wall_guard_corrections"] = guard.corrected
+    if stopped:
+        settings["stopped_empty"] = stopped[0]
     return _prediction(truth, initial, pred, dt, settings)
+
+
+def _check_fits_in_memory(steps: int, particles: int, dtype: torch.dtype) -> None:
+    """Refuse a rollout whose predictions (``[steps, N, 3]``, twice: tensors and the
+    Trajectory) would need more than half of this machine's memory."""
+    itemsize = torch.empty(0, dtype=dtype).element_size()
+    need = 2 * steps * max(particles, 1) * 3 * itemsize
+    try:
+        total = os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # not on every platform
+        return
+    if need > total / 2:
+        most = int(total / 2 / (2 * max(particles, 1) * 3 * itemsize))
+        raise InputError(
+            f"steps: {steps:,} learned steps of {particles:,} particles need about "
+            f"{need / 2**30:.0f} GiB, more than half of this machine's {total / 2**30:.0f} GiB; "
+            f"roll out at most {most:,} steps at a time"
+        )
 
 
 def _prediction(

@@ -7,6 +7,8 @@ the prediction as a Trajectory HDF5 file (the ground truth's format).
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 import torch
@@ -16,7 +18,14 @@ from granular_pyg.cli import command
 from granular_pyg.data import load_split
 from granular_pyg.errors import InputError, NonFiniteError
 from granular_pyg.inference import load_simulator, rollout_trajectory
-from granular_pyg.io import Trajectory, export_paraview, read_trajectory, write_trajectory
+from granular_pyg.io import (
+    Trajectory,
+    check_output,
+    export_paraview,
+    read_trajectory,
+    write_trajectory,
+)
+from granular_pyg.pretrained import resolve_checkpoint
 
 __all__ = ["default_trajectory", "rollout"]
 
@@ -37,10 +46,11 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     if cfg.dtype not in DTYPES:
         raise InputError(f"dtype: expected one of {sorted(DTYPES)}, got {cfg.dtype!r}")
     torch.set_num_threads(cfg.threads)
+    out = check_output(cfg.out, [cfg.trajectory, resolve_checkpoint(cfg.ckpt)], cfg.overwrite)
     sim, config = load_simulator(cfg.ckpt)
     source = Path(cfg.trajectory) if cfg.trajectory else default_trajectory(config)
+    out = check_output(out, [source], cfg.overwrite)
     truth = read_trajectory(source)
-    out = Path(cfg.out)
     try:
         pred = rollout_trajectory(
             sim,
@@ -51,17 +61,23 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
             dtype=DTYPES[cfg.dtype],
             skin=cfg.skin,
             wall_guard=cfg.wall_guard,
+            stop_when_empty=True,
         )
     except NonFiniteError as exc:
         partial = out.with_suffix(".partial.h5")
         exc.partial.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
-        write_trajectory(exc.partial, partial)
+        _write_or_keep(exc.partial, partial)
         exc.args = (f"{exc.args[0]}\nthe {exc.step} steps before it: {partial}",)
         raise
     pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
-    write_trajectory(pred, out)
+    out = _write_or_keep(pred, out)
     steps = pred.metadata["steps"]
     print(f"rollout: {steps} learned steps of {pred.metadata['dt'] * 1e3:g} ms from {source}")
+    if "stopped_empty" in pred.metadata:
+        print(f"stopped after step {steps}: no particle is left in the scene")
+    beyond = float(pred.times[-1] - truth.times[-1])
+    if beyond > 0:
+        print(f"note: {beyond:.3g} s past the trajectory's end (the walls follow its Scene)")
     if cfg.wall_guard:
         fixes = pred.metadata["wall_guard_corrections"]
         print(f"wall guard: {fixes} particle-steps stopped at a wall")
@@ -70,6 +86,27 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
         pvd = export_paraview(out.parent / "paraview", {"prediction": pred}, progress=cfg.progress)
         print(f"ParaView: {pvd}")
     return pred, out
+
+
+def _write_or_keep(traj: Trajectory, out: Path) -> Path:
+    """Write ``traj`` to ``out``; if that fails (a full disk, a folder gone), write it to a
+    fallback file in the temporary folder so that the computation is not lost, and say where."""
+    try:
+        write_trajectory(traj, out)
+        return out
+    except OSError as exc:
+        fallback = Path(tempfile.gettempdir()) / f"granular_pyg_{out.stem}_{os.getpid()}.h5"
+        try:
+            write_trajectory(traj, fallback)
+        except OSError:
+            raise InputError(
+                f"out: writing {out} failed ({exc.strerror or exc}) and so did the fallback "
+                f"{fallback}; free some space and run again"
+            ) from exc
+        raise InputError(
+            f"out: writing {out} failed ({exc.strerror or exc}); the prediction is kept in "
+            f"{fallback}"
+        ) from exc
 
 
 @command("rollout")
