@@ -14,7 +14,7 @@ from hydra import initialize_config_dir
 from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig
 
-__all__ = ["CONF_DIR", "compose", "find_conf_dir"]
+__all__ = ["CONF_DIR", "compose", "find_conf_dir", "flatten"]
 
 
 def find_conf_dir() -> Path:
@@ -41,3 +41,14 @@ def compose(config_name: str, overrides: list[str] | None = None) -> DictConfig:
         return hydra.compose(config_name=config_name, overrides=overrides or [])
     with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
         return hydra.compose(config_name=config_name, overrides=overrides or [])
+
+
+def flatten(tree, prefix: str = "") -> dict:
+    """A nested dict as ``{"a.b.c": leaf}`` (a non-dict ``tree`` is ``{prefix: tree}``), to
+    name the keys in which two configs differ."""
+    if not isinstance(tree, dict):
+        return {prefix: tree}
+    out = {}
+    for key, value in tree.items():
+        out |= flatten(value, f"{prefix}.{key}" if prefix else str(key))
+    return out

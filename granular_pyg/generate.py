@@ -10,6 +10,7 @@ atomic). ``jobs`` serial LIGGGHTS runs go at a time.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import queue
 import shutil
@@ -20,10 +21,12 @@ from typing import Any
 
 import hydra
 import numpy as np
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
 from granular_pyg.cli import command
+from granular_pyg.config import flatten
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_write, write_trajectory
@@ -54,7 +57,8 @@ def _sample(rng: np.random.Generator, low, high):
 def plan_trajectories(cfg: DictConfig) -> list[dict[str, Any]]:
     """One entry per trajectory: file name, split, seed and the scene-builder parameters."""
     build = OmegaConf.to_container(cfg.scene.build, resolve=True)
-    ranges = OmegaConf.to_container(cfg.scene.get("ranges") or {}, resolve=True)
+    ranges = cfg.scene.get("ranges")
+    ranges = OmegaConf.to_container(ranges, resolve=True) if ranges else {}
     unknown = set(ranges) - set(build)
     if unknown:
         raise InputError(
@@ -99,6 +103,7 @@ def _run_one(entry: dict, cfg: DictConfig, out: Path, slots: queue.Queue) -> dic
         )
         traj.metadata |= {"split": entry["split"], "index": entry["index"]}
         write_trajectory(traj, out / entry["file"], level=int(cfg.compression_level))
+        digest = trajectory_digest(traj)
         if not cfg.keep_workdirs:
             shutil.rmtree(workdir, ignore_errors=True)
         total = time.perf_counter() - start
@@ -107,16 +112,62 @@ def _run_one(entry: dict, cfg: DictConfig, out: Path, slots: queue.Queue) -> dic
             "pipeline_s": total,
             "overhead": (total - run.wall_time_s) / run.wall_time_s,
             "liggghts_version": run.version,
+            "sha256": digest,
         }
     finally:
         slots.put(slot)
 
 
+def trajectory_digest(traj) -> str:
+    """SHA-256 of a trajectory's arrays (times, positions, velocities, radii): the same for a
+    bit-identical regeneration, whatever the HDF5 file's layout."""
+    digest = hashlib.sha256()
+    for array in (traj.times, traj.positions, traj.velocities, traj.radii):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()
+
+
+#: Manifest keys that must match for a run to add to an existing dataset folder.
+DATASET_KEYS = ("scene_config", "seed", "n", "split_fractions")
+
+
+def _check_same_dataset(path: Path, manifest: dict) -> None:
+    """Refuse to add to a folder whose manifest was made with other settings."""
+    if not path.is_file():
+        return
+    old = json.loads(path.read_text())
+    differ = []
+    for key in DATASET_KEYS:
+        if key not in old:  # a manifest from before the key was recorded
+            continue
+        a, b = flatten(old[key], key), flatten(manifest[key], key)
+        changed = [k for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+        differ += [f"{k}: {a.get(k)!r} -> {b.get(k)!r}" for k in changed]
+    if differ:
+        raise InputError(
+            f"out: {path.parent} holds a dataset made with other settings ("
+            + "; ".join(differ[:8])
+            + "); choose a new out= folder, or rerun with the same settings to complete it"
+        )
+
+
 def generate(cfg: DictConfig) -> Path:
-    """Generate (or complete) the dataset described by ``cfg``; returns the manifest's path."""
+    """Generate (or complete) the dataset described by ``cfg``; returns the manifest's path.
+
+    The manifest is written first (then completed with timings and digests), so a folder
+    always records the settings of its files: a run into a folder made with other settings is
+    refused, and splits never move.
+    """
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     plan = plan_trajectories(cfg)
+    path = out / "manifest.json"
+    old = json.loads(path.read_text()) if path.is_file() else {}
+    recorded = {e["file"]: e for e in old.get("trajectories", [])}
+    manifest = _manifest(cfg, plan, recorded)
+    _check_same_dataset(path, manifest)
+    with atomic_write(path) as fh:
+        json.dump(manifest, fh, indent=1)
     todo = [e for e in plan if not (out / e["file"]).exists()]
     print(f"{cfg.scene.name}: {len(plan) - len(todo)} of {len(plan)} trajectories present in {out}")
     jobs = max(1, int(cfg.jobs))
@@ -149,17 +200,7 @@ def generate(cfg: DictConfig) -> Path:
                 bar.update(1)
     bar.close()
 
-    manifest = {
-        "scene": cfg.scene.name,
-        "n": len(plan),
-        "seed": int(cfg.seed),
-        "scene_config": OmegaConf.to_container(cfg.scene, resolve=True),
-        "splits": {
-            s: [e["file"] for e in plan if e["split"] == s] for s in ("train", "valid", "test")
-        },
-        "trajectories": [e | {"timing": timings.get(e["file"])} for e in plan],
-    }
-    path = out / "manifest.json"
+    manifest = _manifest(cfg, plan, recorded, timings)
     with atomic_write(path) as fh:
         json.dump(manifest, fh, indent=1)
     if not cfg.keep_workdirs:
@@ -173,9 +214,45 @@ def generate(cfg: DictConfig) -> Path:
     return path
 
 
+def _manifest(cfg: DictConfig, plan: list[dict], recorded: dict, timings: dict | None = None):
+    """The manifest of ``plan``: settings, splits, and per trajectory its timing and digest
+    (from this run, else as ``recorded`` by an earlier one)."""
+    timings = timings or {}
+    entries = []
+    for e in plan:
+        done = timings.get(e["file"]) or (recorded.get(e["file"]) or {}).get("timing")
+        sha = (done or {}).pop("sha256", None) or (recorded.get(e["file"]) or {}).get("sha256")
+        entries.append(e | {"timing": done, "sha256": sha})
+    return {
+        "scene": cfg.scene.name,
+        "n": len(plan),
+        "seed": int(cfg.seed),
+        "split_fractions": {k: float(v) for k, v in cfg.splits.items()},
+        "scene_config": OmegaConf.to_container(cfg.scene, resolve=True),
+        "splits": {
+            s: [e["file"] for e in plan if e["split"] == s] for s in ("train", "valid", "test")
+        },
+        "trajectories": entries,
+    }
+
+
+def _without_ranges_if_asked(cfg: DictConfig) -> DictConfig:
+    """``scene.ranges={}`` on the command line means no ranges (Hydra would merge the empty
+    dict into the preset's ranges and change nothing), as ``~scene.ranges`` and
+    ``scene.ranges=null`` do."""
+    try:
+        overrides = HydraConfig.get().overrides.task
+    except ValueError:  # not inside a Hydra app
+        return cfg
+    if any(o.replace(" ", "") in ("scene.ranges={}", "scene.ranges=") for o in overrides):
+        OmegaConf.set_struct(cfg, False)
+        cfg.scene.ranges = None
+    return cfg
+
+
 @command("generate")
 def main(cfg: DictConfig) -> None:
-    generate(cfg)
+    generate(_without_ranges_if_asked(cfg))
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
 from granular_pyg.cli import command
+from granular_pyg.config import flatten
 from granular_pyg.errors import InputError
 from granular_pyg.progress import show_progress
 from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
@@ -43,7 +44,7 @@ def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
     now = OmegaConf.to_container(cfg, resolve=True)
     differ = []
     for section in RESUME_KEYS:
-        old, new = _flatten(saved.get(section, {})), _flatten(now.get(section, {}))
+        old, new = flatten(saved.get(section, {})), flatten(now.get(section, {}))
         differ += [
             f"{section}.{k}: {old.get(k)!r} -> {new.get(k)!r}"
             for k in sorted(set(old) | set(new))
@@ -55,15 +56,6 @@ def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
             + "\n  ".join(differ)
             + "\nresume with the same model/data overrides"
         )
-
-
-def _flatten(tree, prefix: str = "") -> dict:
-    if not isinstance(tree, dict):
-        return {prefix: tree}
-    out = {}
-    for key, value in tree.items():
-        out |= _flatten(value, f"{prefix}.{key}" if prefix else str(key))
-    return out
 
 
 class _SaveConfig(L.Callback):

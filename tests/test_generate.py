@@ -15,7 +15,13 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from granular_pyg.errors import InputError
-from granular_pyg.generate import generate, plan_trajectories, split_counts
+from granular_pyg.generate import (
+    _without_ranges_if_asked,
+    generate,
+    plan_trajectories,
+    split_counts,
+    trajectory_digest,
+)
 from granular_pyg.io import read_trajectory
 
 REPO = Path(__file__).resolve().parents[1]
@@ -68,6 +74,19 @@ def test_unknown_range_key_is_named():
         plan_trajectories(cfg)
 
 
+@pytest.mark.parametrize("override", ["scene.ranges={}", "scene.ranges=null", "~scene.ranges"])
+def test_every_way_of_saying_no_ranges_samples_nothing(override):
+    from hydra import compose as hydra_compose
+    from hydra.core.hydra_config import HydraConfig
+
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = hydra_compose("generate", [override, "n=3"], return_hydra_config=True)
+    HydraConfig.instance().set_config(cfg)
+    plan = plan_trajectories(_without_ranges_if_asked(cfg))
+    build = {k: v for k, v in cfg.scene.build.items()}
+    assert all(e["params"] == build for e in plan)
+
+
 @pytest.mark.slow
 def test_generate_runs_liggghts_writes_hdf5_and_resumes(tmp_path):
     out = tmp_path / "data"
@@ -88,12 +107,23 @@ def test_generate_runs_liggghts_writes_hdf5_and_resumes(tmp_path):
     assert np.isfinite(traj.positions[0]).all()
     assert not (out / ".work").exists()
 
-    # Resume: only the missing trajectory is made again, the others are untouched.
+    # Resume: only the missing trajectory is made again, the others are untouched, and the
+    # new one is bit-identical (its digest equals the manifest's).
     stamp = (out / "traj_0000.h5").stat().st_mtime_ns
+    digest = manifest["trajectories"][2]["sha256"]
+    assert digest == trajectory_digest(read_trajectory(out / "traj_0002.h5"))
     (out / "traj_0002.h5").unlink()
     generate(_cfg(*TINY, "n=3", f"out={out}"))
-    assert (out / "traj_0002.h5").exists()
+    assert trajectory_digest(read_trajectory(out / "traj_0002.h5")) == digest
     assert (out / "traj_0000.h5").stat().st_mtime_ns == stamp
+
+    # Other settings into the same folder: refused, naming the keys; nothing moves.
+    before = manifest_path.read_text()
+    with pytest.raises(InputError, match=r"scene_config.build.alpha_deg: 60.0 -> 70.0.*new out="):
+        generate(_cfg(*TINY, "n=3", f"out={out}", "scene.build.alpha_deg=70.0", "~scene.ranges"))
+    with pytest.raises(InputError, match=r"n: 3 -> 4"):
+        generate(_cfg(*TINY, "n=4", f"out={out}"))
+    assert manifest_path.read_text() == before
 
 
 @pytest.mark.slow
