@@ -21,7 +21,12 @@ from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
 from granular_pyg.evaluation.report import EvaluatedRollout
-from granular_pyg.inference import load_simulator, matching_frames, rollout_trajectory
+from granular_pyg.inference import (
+    load_simulator,
+    matching_frames,
+    rollout_trajectory,
+    warn_outside_training,
+)
 from granular_pyg.io import Trajectory, export_paraview, read_trajectory, write_trajectory
 
 __all__ = ["evaluate", "selected_files"]
@@ -42,6 +47,7 @@ def evaluate(cfg: DictConfig) -> Path:
     for split, files in selected_files(cfg, root, sample).items():
         for file in files[: cfg.max_trajectories]:
             truth = read_trajectory(file)
+            warn_outside_training(config, truth, str(file))
             pred = rollout_trajectory(
                 sim,
                 truth,

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ __all__ = [
     "matching_frames",
     "rollout_trajectory",
     "time_step_multiple",
+    "warn_outside_training",
 ]
 
 
@@ -44,7 +46,8 @@ def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[Learned
 
     Returns:
         ``(simulator, config)``: the model with its weights, normalisation statistics and ``dt``,
-        and the training run's resolved config (a dict).
+        and the training run's resolved config (a dict) with the checkpoint's model card under
+        ``model_card`` (:mod:`granular_pyg.training.model_card`; empty for old checkpoints).
     """
     path = resolve_checkpoint(path)
     if not path.is_file():
@@ -71,7 +74,19 @@ def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[Learned
             f"{path}: weights do not fit the model of its config (missing {missing[:5]}, "
             f"unexpected {unexpected[:5]})"
         )
+    config = dict(config) | {"model_card": ckpt.get("model_card") or {}}
     return sim.eval(), config
+
+
+def warn_outside_training(config: dict, truth: Trajectory, name: str) -> list[str]:
+    """Print one ``warning:`` line (standard error) per property of ``truth`` outside the
+    model's training data (its card), naming the trajectory ``name``; returns the messages."""
+    from granular_pyg.training.model_card import outside_training
+
+    found = outside_training(config.get("model_card"), truth)
+    for message in found:
+        print(f"warning: {name}: {message}; the prediction may be poor", file=sys.stderr)
+    return found
 
 
 def time_step_multiple(sim: LearnedSimulator, frame_dt: float) -> int:

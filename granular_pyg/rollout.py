@@ -17,7 +17,7 @@ from omegaconf import DictConfig
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
 from granular_pyg.errors import InputError, NonFiniteError
-from granular_pyg.inference import load_simulator, rollout_trajectory
+from granular_pyg.inference import load_simulator, rollout_trajectory, warn_outside_training
 from granular_pyg.io import (
     Trajectory,
     check_output,
@@ -51,6 +51,7 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     source = Path(cfg.trajectory) if cfg.trajectory else default_trajectory(config)
     out = check_output(out, [source], cfg.overwrite)
     truth = read_trajectory(source)
+    warn_outside_training(config, truth, str(source))
     try:
         pred = rollout_trajectory(
             sim,

@@ -22,12 +22,16 @@ from granular_pyg.errors import InputError
 from granular_pyg.progress import show_progress
 from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
 from granular_pyg.training.epoch_log import EpochLog
+from granular_pyg.training.model_card import card_of_trajectories
 from granular_pyg.training.saved_config import migrate_config
 
 __all__ = ["train"]
 
 #: Config sections that must match between a checkpoint and the run that resumes it.
 RESUME_KEYS = ("model", "data")
+#: Keys set from the data at the start of training (the learned step is the data's frame
+#: spacing times data.frames_per_step, both compared), so a checkpoint stores the real value.
+DERIVED_KEYS = {"model.dt"}
 
 
 def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
@@ -48,7 +52,7 @@ def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
         differ += [
             f"{section}.{k}: {old.get(k)!r} -> {new.get(k)!r}"
             for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k)
+            if old.get(k) != new.get(k) and f"{section}.{k}" not in DERIVED_KEYS
         ]
     if differ:
         raise InputError(
@@ -59,11 +63,29 @@ def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
 
 
 class _SaveConfig(L.Callback):
-    def __init__(self, cfg: DictConfig) -> None:
+    """Stores the run's config (with the learned step the data set) and its model card in
+    every checkpoint."""
+
+    def __init__(self, cfg: DictConfig, card: dict) -> None:
         self.config = OmegaConf.to_container(cfg, resolve=True)
+        self.config["model"]["dt"] = card.get("dt_s", self.config["model"].get("dt"))
+        self.card = card
 
     def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
         checkpoint["config"] = self.config
+        checkpoint["model_card"] = self.card
+
+
+def _card(cfg: DictConfig, sim, datamodule) -> dict:
+    """The model card of ``sim`` trained on ``datamodule``'s training trajectories."""
+    return card_of_trajectories(
+        datamodule.train_set.trajs,
+        float(sim.dt),
+        float(sim.radius_graph.radius),
+        str(cfg.model.get("normals")),
+        sim.history,
+        datamodule.step,
+    )
 
 
 def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float]:
@@ -87,7 +109,7 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     callbacks = [
         L.pytorch.callbacks.ModelCheckpoint(dirpath=out / "checkpoints", **cfg.checkpoint),
         RolloutValidation(**cfg.rollout_validation),
-        _SaveConfig(cfg),
+        _SaveConfig(cfg, _card(cfg, sim, datamodule)),
     ]
     if logger:
         callbacks.append(L.pytorch.callbacks.LearningRateMonitor(logging_interval="step"))

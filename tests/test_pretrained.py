@@ -52,7 +52,7 @@ def test_export_keeps_config_and_weights_only(tmp_path):
     out = export(tmp_path / "last.ckpt", "drum", "drum", "a note", folder=tmp_path)
     assert out.name == PRETRAINED["drum"]
     slim = torch.load(out, weights_only=False)
-    assert set(slim) == {"config", "state_dict", "pretrained"}
+    assert set(slim) == {"config", "state_dict", "model_card", "pretrained"}
     assert slim["config"]["data"]["sample"] == "drum" and slim["config"]["data"]["root"] is None
     assert slim["pretrained"]["trained_on"]["root"] == "data/somewhere"
     assert slim["pretrained"]["global_step"] == 7

@@ -42,6 +42,7 @@ def export(
     slim = {
         "config": config,
         "state_dict": {k: v for k, v in full["state_dict"].items() if k.startswith("sim.")},
+        "model_card": full.get("model_card") or {},
         "pretrained": {
             "source": str(ckpt),
             "global_step": int(full.get("global_step", 0)),
