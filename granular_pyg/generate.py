@@ -27,6 +27,7 @@ from tqdm.auto import tqdm
 
 from granular_pyg.cli import command
 from granular_pyg.config import flatten
+from granular_pyg.dem.liggghts import find_liggghts
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_write, write_trajectory
@@ -100,6 +101,7 @@ def _run_one(entry: dict, cfg: DictConfig, out: Path, slots: queue.Queue) -> dic
             mpi_procs=int(cfg.mpi_procs),
             progress=bool(cfg.progress),
             progress_position=slot,
+            executable=cfg.get("liggghts"),
         )
         traj.metadata |= {"split": entry["split"], "index": entry["index"]}
         write_trajectory(traj, out / entry["file"], level=int(cfg.compression_level))
@@ -169,6 +171,8 @@ def generate(cfg: DictConfig) -> Path:
     with atomic_write(path) as fh:
         json.dump(manifest, fh, indent=1)
     todo = [e for e in plan if not (out / e["file"]).exists()]
+    if todo:
+        find_liggghts(cfg.get("liggghts"))  # before any work: a clear error if it is missing
     print(f"{cfg.scene.name}: {len(plan) - len(todo)} of {len(plan)} trajectories present in {out}")
     jobs = max(1, int(cfg.jobs))
     slots: queue.Queue = queue.Queue()

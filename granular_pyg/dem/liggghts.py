@@ -54,6 +54,8 @@ __all__ = [
 ]
 
 INSTALL_HINT = "apt-get install -y --no-install-recommends liggghts"
+#: Environment variable that names the LIGGGHTS binary (a path or a name on PATH).
+LIGGGHTS_ENV = "GRANULAR_PYG_LIGGGHTS"
 #: LIGGGHTS rejects triangles with an angle at or below this (degrees).
 MIN_ANGLE_DEG = 0.256
 DUMP_NAME = "traj.dump"
@@ -86,13 +88,17 @@ class DemRun:
     inserted: int
 
 
-def find_liggghts(executable: str = "liggghts") -> str:
-    """Path of the LIGGGHTS binary, or an :class:`InputError` that says how to install it."""
+def find_liggghts(executable: str | None = None) -> str:
+    """Path of the LIGGGHTS binary: ``executable`` (a name on PATH or a path), else the
+    ``GRANULAR_PYG_LIGGGHTS`` environment variable, else ``liggghts``; or an
+    :class:`InputError` that says how to install it or where to point."""
+    executable = executable or os.environ.get(LIGGGHTS_ENV) or "liggghts"
     found = shutil.which(executable)
     if found is None:
         raise InputError(
-            f"LIGGGHTS ({executable!r}) is not on PATH; install it with `{INSTALL_HINT}` "
-            "(as root; `make setup` does this) or pass the binary's path"
+            f"LIGGGHTS ({executable!r}) is not found; install it with `{INSTALL_HINT}` "
+            f"(as root; `make setup` does this), or give the binary's path: liggghts=<path> "
+            f"(generate) or the environment variable {LIGGGHTS_ENV}=<path>"
         )
     return found
 
@@ -368,7 +374,7 @@ def run_liggghts(
     seed: int,
     *,
     mpi_procs: int = 1,
-    executable: str = "liggghts",
+    executable: str | None = None,
     progress: bool = True,
     progress_position: int = 0,
 ) -> DemRun:
@@ -383,7 +389,7 @@ def run_liggghts(
         workdir: folder for the run's files (created).
         seed: base seed (prime seeds derive from it).
         mpi_procs: MPI processes (``mpirun``); 1 runs serially, which is bit-reproducible.
-        executable: LIGGGHTS binary name or path.
+        executable: LIGGGHTS binary name or path (default: see :func:`find_liggghts`).
         progress: show a tqdm bar.
         progress_position: tqdm line, for several runs at once.
 

@@ -25,6 +25,7 @@ def simulate(
     mpi_procs: int = 1,
     progress: bool = True,
     progress_position: int = 0,
+    executable: str | None = None,
 ) -> tuple[Trajectory, DemRun]:
     """Run LIGGGHTS on ``scene`` and convert its dump into a :class:`Trajectory`.
 
@@ -33,7 +34,7 @@ def simulate(
         seed: base seed of the run (LIGGGHTS's prime seeds derive from it).
         workdir: folder for LIGGGHTS's files; a temporary one when omitted.
         keep_workdir: keep the folder (script, STL, log, dump) after success.
-        mpi_procs, progress, progress_position: see :func:`run_liggghts`.
+        mpi_procs, progress, progress_position, executable: see :func:`run_liggghts`.
 
     Returns:
         The trajectory (frames every ``scene.frame_dt`` from recorded time 0, NaN for particles
@@ -48,6 +49,7 @@ def simulate(
         mpi_procs=mpi_procs,
         progress=progress,
         progress_position=progress_position,
+        executable=executable,
     )
     start = time.perf_counter()
     arrays = frames_to_arrays(read_dump(run.dump_path, on_truncated="raise"), scene.dem_dt)

@@ -27,6 +27,7 @@ def check_output(
     overwrite: bool = False,
     option: str = "out",
     min_free_bytes: int = MIN_FREE_BYTES,
+    overwrite_option: str = "overwrite=true",
 ) -> Path:
     """Refuse an output file that would destroy an input or an earlier result, or that cannot
     be written, before any work is done.
@@ -37,6 +38,8 @@ def check_output(
             (the same path, a link to it, or the folder that holds a dump).
         overwrite: allow replacing an existing ``out``.
         option: how the user names ``out`` (``out``, ``--out``), for the message.
+        overwrite_option: how the user allows replacing it (``overwrite=true``,
+            ``--overwrite``), for the message.
         min_free_bytes: free space the output folder needs.
 
     Returns:
@@ -62,7 +65,7 @@ def check_output(
         raise InputError(f"{option}: {out} is a folder; name a file, e.g. {out / 'result.h5'}")
     if out.exists() and not overwrite:
         raise InputError(
-            f"{option}: {out} exists; choose another file or pass overwrite=true to replace it"
+            f"{option}: {out} exists; choose another file or pass {overwrite_option} to replace it"
         )
     folder = out.parent
     try:

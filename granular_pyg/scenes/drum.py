@@ -66,6 +66,8 @@ def make_drum(
     Returns:
         A Scene with one wall ``drum`` rotating about the y axis through the origin.
     """
+    if not (math.isfinite(particle_radius) and particle_radius > 0):
+        raise InputError(f"particle_radius: expected a positive radius (m), got {particle_radius}")
     if not 0 < fill_fraction < 0.6:
         raise InputError(f"fill_fraction: expected a value in (0, 0.6), got {fill_fraction}")
     if sections < 12:

@@ -89,6 +89,8 @@ def make_hopper(
     Returns:
         A Scene with walls ``hopper`` (static) and ``lid`` (removed at ``t_open``).
     """
+    if not (math.isfinite(particle_radius) and particle_radius > 0):
+        raise InputError(f"particle_radius: expected a positive radius (m), got {particle_radius}")
     if not 30.0 < alpha_deg < 90.0:
         raise InputError(f"alpha_deg: expected a value in (30, 90), got {alpha_deg}")
     if opening <= 2 * particle_radius:

@@ -127,7 +127,7 @@ def test_metadata_records_the_source(run):
     metadata = trajectory_from_dumps(dump, stls, dem_dt=2e-5).metadata
     assert (metadata["source"], metadata["dumps"], metadata["first_timestep"]) == (
         "imported",
-        str(dump),
+        [str(dump)],
         1000,
     )
 
@@ -170,6 +170,68 @@ def test_cli_prints_a_one_line_summary(run, tmp_path, capsys):
     )
     out = capsys.readouterr().out
     assert out.count("\n") == 1 and "2 frames x 3 particles" in out
+
+
+def test_a_missing_time_step_says_where_to_give_it(run):
+    dump, stls = run
+    with pytest.raises(InputError, match=r"--dem-dt: the run's DEM time step .*--input/--log"):
+        trajectory_from_dumps(dump, stls)
+
+
+def test_walls_yaml_gives_motions_removals_units_kind_and_materials(run, tmp_path):
+    dump, stls = run
+    mm = tmp_path / "lid_mm.stl"
+    trimesh.load(stls[1], force="mesh", process=False).apply_scale(1000).export(mm)
+    walls = tmp_path / "walls.yaml"
+    walls.write_text(
+        "kind: drum\n"
+        "gravity: [0, 0, -9.7]\n"
+        "materials: {youngs_modulus: 5.0e6, density: 1200}\n"
+        "walls:\n"
+        "  hopper-walls.stl:\n"
+        "    motion: {kind: rotation, axis: [0, 1, 0], omega: 2.0, start_time: 0.001}\n"
+        "  lid_mm.stl:\n"
+        "    name: lid\n"
+        "    units: mm\n"
+        "    removal_time: 0.0025\n"
+    )
+    scene = trajectory_from_dumps(dump, [stls[0]], dem_dt=2e-5, walls=walls).scene
+    box, lid = scene.walls
+    assert (box.motion.kind, box.motion.omega, box.motion.start_time) == ("rotation", 2.0, 0.001)
+    assert (lid.name, lid.removal_time) == ("lid", 0.0025)
+    np.testing.assert_allclose(lid.vertices[:, 0].max(), 0.04)
+    assert (scene.kind, scene.name, scene.gravity) == ("drum", "drum", (0.0, 0.0, -9.7))
+    assert (scene.materials.youngs_modulus, scene.materials.density) == (5e6, 1200.0)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("walls:\n  lid.stl:\n    removal: 1.0\n", r"walls\[lid.stl\]: unknown key.*removal"),
+        ("walls:\n  lid.stl: {units: inch}\n", "units 'inch'"),
+        ("walls:\n  lid.stl:\n    motion: {kind: spin}\n", "motion.kind"),
+        ("kind: silo\n", "kind 'silo'"),
+        ("materials: {density: heavy}\n", "materials.density: expected a number"),
+    ],
+)
+def test_walls_yaml_mistakes_are_named(run, tmp_path, text, message):
+    dump, stls = run
+    walls = tmp_path / "walls.yaml"
+    walls.write_text(text)
+    with pytest.raises(InputError, match=message):
+        trajectory_from_dumps(dump, stls, dem_dt=2e-5, walls=walls)
+
+
+def test_cli_takes_several_dumps_kind_and_units(run, tmp_path, capsys):
+    dump, stls = run
+    second = tmp_path / "more.liggghts"
+    last = DUMP[DUMP.index("ITEM: TIMESTEP", 1) :]  # the frame at 1125, again at 1250
+    second.write_text(last + last.replace("\n1125\n", "\n1250\n", 1))
+    out = tmp_path / "t.h5"
+    argv = [str(dump), str(second), "--stl", *map(str, stls), "--dem-dt", "2e-5"]
+    convert.main([*argv, "--out", str(out), "--kind", "hopper", "--units", "m"])
+    traj = read_trajectory(out)
+    assert (traj.num_frames, traj.scene.kind) == (3, "hopper")
 
 
 def test_cli_reports_bad_input_without_a_traceback(tmp_path, capsys):
