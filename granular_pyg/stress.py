@@ -7,8 +7,9 @@ keep its lid closed, a resting bed) and checks every learned step for:
 - NaN/Inf: the step's :class:`~granular_pyg.errors.NonFiniteError` (step and particle rows);
 - kinetic-energy growth: kinetic energy (J, from the step's displacement) against the ground
   truth's largest, failing above ``ke_limit`` times it;
-- leaked particles: centres beyond a container wall by more than the smallest radius
-  (:func:`granular_pyg.metrics.leaked_mask`), judged before the outflow removes anyone;
+- leaked particles: centres whose step crossed a wall of the container (walls posed at the
+  step's start and end, :func:`granular_pyg.metrics.leaked_mask`), judged before the outflow
+  removes anyone;
 - escaped particles: particles that left the Scene's simulation box other than through the
   outflow floor (through a wall); as LIGGGHTS deletes atoms that leave its box, they are
   removed (so a particle flung away cannot outgrow float32) and counted as leaked;
@@ -175,11 +176,13 @@ def stress_case(
         outside = {name: _outside(pos, box) for name, pos in nxt.items()}
         escaped = outside["float32"] & ~out & before
         n_escaped = int(escaped.sum())
+        # Moves through a wall (the lid while present), judged before anyone is removed.
+        moves = torch.stack([seq[:, -1], new]).numpy()
+        now = leaked_mask(moves, scene, np.array([time, time + dt]), walls=walls, initial=False)[1]
         for name in nxt:
             nxt[name][outside[name]] = float("nan")
         after = torch.isfinite(new).all(1)  # the box's floor is the outflow plane
         # Reaching the outflow through a closed outlet is a leak too.
-        now = leaked_mask(new.numpy()[None], scene, np.array([time + dt]), tol)[0]
         if any(w.present(time + dt) for w in scene.walls if w.name in closers):
             now |= (before & out).numpy()
         if n_escaped:

@@ -143,10 +143,10 @@ def test_the_wall_guard_keeps_particles_thrown_at_the_walls_inside(sim, hopper):
     held = rollout_trajectory(
         sim, thrown, steps=6, start_frame=start, progress=False, wall_guard=True
     )
-    scene, radii = hopper.scene, hopper.radii
-    leaked_free = leaked_particles(free.positions[6:], scene, free.times[6:], radii)
+    scene = hopper.scene
+    leaked_free = leaked_particles(free.positions[6:], scene, free.times[6:])
     assert leaked_free > 50
-    assert leaked_particles(held.positions[6:], scene, held.times[6:], radii) == 0
+    assert leaked_particles(held.positions[6:], scene, held.times[6:]) == 0
     assert held.metadata["wall_guard"] is True
     assert held.metadata["wall_guard_corrections"] >= leaked_free
     assert free.metadata["wall_guard"] is False

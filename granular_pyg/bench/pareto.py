@@ -50,18 +50,18 @@ def emd_at_horizons(
 ) -> dict[float, float]:
     """``{horizon (s): EMD (m^2)}`` between ``pred`` and ``truth`` at the predicted frame
     nearest each time ``horizon`` after ``pred``'s last initial frame (within half a frame of
-    ``truth``). Horizons past the rollout or where either set is empty are left out."""
+    ``truth``). Horizons past the rollout are left out; where one set is empty, the other's
+    particles are moved to the outlet (:func:`granular_pyg.metrics.outlet_point`), so a model
+    that drains too fast is not rewarded."""
     start = pred.times[int(pred.metadata.get("initial_frames", 1)) - 1]
+    sink = metrics.outlet_point(truth.scene) if truth.scene is not None else None
     out = {}
     for h in horizons_s:
         i = int(np.argmin(np.abs(pred.times - (start + h))))
         j = int(np.argmin(np.abs(truth.times - pred.times[i])))
         if abs(pred.times[i] - (start + h)) > 0.5 * (pred.times[1] - pred.times[0]):
             continue
-        t_pos, p_pos = truth.positions[j], pred.positions[i]
-        if not (np.isfinite(t_pos).all(1).any() and np.isfinite(p_pos).all(1).any()):
-            continue
-        out[h] = metrics.emd(t_pos, p_pos)
+        out[h] = metrics.emd(truth.positions[j], pred.positions[i], sink=sink)
     return out
 
 

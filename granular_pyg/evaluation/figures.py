@@ -19,8 +19,9 @@ COLOURS = ("tab:blue", "tab:orange", "tab:green")
 def comparison_figure(ev: PairEvaluation, title: str = ""):
     """Six panels of one rollout against its ground truth (solid: LIGGGHTS, dashed: learned):
     particle-averaged position, flow profile over z, flow over time, mixing entropy, the
-    scene's observable (hopper: discharged fraction; drum: dynamic angle of repose) and EMD
-    against the learned step (log-log).
+    scene's observable (hopper: discharged fraction; drum: dynamic angle of repose; other: the
+    fraction of particles that left) and EMD against the learned step (log-log). A panel the
+    scene cannot have (mixing in a scene of kind ``other``) says so.
 
     Args:
         ev: the evaluation of one (truth, prediction) pair.
@@ -56,12 +57,14 @@ def comparison_figure(ev: PairEvaluation, title: str = ""):
     ax.plot(t, s["entropy_pred"], color="tab:red", **PRED)
     ax.axhline(np.log(2), color="0.6", lw=0.8)
     _labels(ax, "time (s)", "mixing entropy", f"Mixing (split at t = {t[ev.mixing_frame]:.3g} s)")
+    _note_if_undefined(ax, s["entropy_truth"], "no mixing axis for this scene")
 
     ax = axes[1, 1]
     key, label = ev.observable
     ax.plot(t, s[f"{key}_truth"], color="k", **TRUTH)
     ax.plot(t, s[f"{key}_pred"], color="tab:red", **PRED)
     _labels(ax, "time (s)", label, label.split(" (")[0].capitalize())
+    _note_if_undefined(ax, s[f"{key}_truth"], "not defined for this scene")
 
     ax = axes[1, 2]
     steps = np.array(sorted(ev.emd_steps))
@@ -81,7 +84,8 @@ VARIANT_COLOURS = {"V1": "tab:blue", "V2": "tab:orange", "V3": "tab:red"}
 def variants_figure(evaluations: dict[str, PairEvaluation], title: str = ""):
     """The paper's Figure 2: one ground truth (solid black) against each variant's rollout
     (dashed): particle-averaged height, flow profile over z, mixing entropy and the scene's
-    observable (hopper: discharged fraction; drum: dynamic angle of repose).
+    observable (hopper: discharged fraction; drum: dynamic angle of repose; other: the fraction
+    of particles that left).
 
     Args:
         evaluations: ``{variant name: evaluation}`` of rollouts of the same trajectory.
@@ -123,6 +127,12 @@ def variants_figure(evaluations: dict[str, PairEvaluation], title: str = ""):
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def _note_if_undefined(ax, curve: np.ndarray, why: str) -> None:
+    """Say so on a panel whose curve the scene cannot have (all NaN)."""
+    if not np.isfinite(curve).any():
+        ax.text(0.5, 0.5, why, ha="center", va="center", transform=ax.transAxes, color="0.4")
 
 
 def _labels(ax, xlabel: str, ylabel: str, title: str) -> None:

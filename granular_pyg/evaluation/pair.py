@@ -13,11 +13,22 @@ from granular_pyg import metrics
 from granular_pyg.errors import InputError
 from granular_pyg.inference import matching_frames
 from granular_pyg.io import Trajectory
+from granular_pyg.scenes import Scene, WallSet
 
 __all__ = ["PairEvaluation", "evaluate_pair"]
 
-#: Axis whose coordinate splits the two mixing classes (paper: x or z), per scene kind.
-MIXING_AXIS = {"hopper": 2, "drum": 0}
+#: Axis whose coordinate splits the two mixing classes in a hopper (paper: z); in a drum it is
+#: the horizontal axis across the drum's own (paper: x, its drum turning about y).
+HOPPER_MIXING_AXIS = 2
+#: Scalars of the metrics that need a scene kind, NaN where a scene of that kind cannot have
+#: them (a drum without a horizontal rotation, a scene of kind ``other``).
+DISCHARGE_SCALARS = ("discharge_rate_truth", "discharge_rate_pred", "discharge_rate_rel_error")
+ANGLE_SCALARS = (
+    "angle_of_repose_truth_deg",
+    "angle_of_repose_pred_deg",
+    "angle_of_repose_error_deg",
+    "angle_of_repose_curve_error_deg",
+)
 #: The paper splits the classes at its frame 30: 0.03 s at its 1 ms frames. Taken as a time,
 #: so that long learned steps (20 ms) still split the bed before a hopper drains.
 MIXING_TIME_S = 0.03
@@ -30,8 +41,15 @@ class PairEvaluation:
 
     Attributes:
         scalars: flat ``{name: number}`` (SI units; names say what, e.g.
-            ``discharge_rate_rel_error``, ``angle_of_repose_error_deg``).
-        emd_steps: ``{learned step 2^k: W2^2 (m^2)}`` while the rollout has that step.
+            ``discharge_rate_rel_error``, ``angle_of_repose_error_deg``). The same keys for
+            every scene of a kind: a hopper has the discharge rates, a drum the angles of
+            repose, a scene of kind ``other`` both as NaN; a metric a scene cannot have
+            (``mixing_entropy_error`` for ``other``) is NaN, with a warning that names it.
+            ``emd_frames`` is the number of frames ``emd_mean`` averages over, the same for
+            every rollout of a trajectory.
+        emd_steps: ``{learned step 2^k: W2^2 (m^2)}`` for every step the rollout has; a step
+            where one side has drained and the other has not counts the remaining particles'
+            move to the outlet (:func:`granular_pyg.metrics.emd`).
         series: curves for the figures, ``[F]`` or ``[F, 3]`` over the rollout's frames (key
             ``times``) or ``[B]`` over z bins (``flow_z_*``).
         observable: the scene's own curve in ``series`` and its axis label.
@@ -57,6 +75,13 @@ def evaluate_pair(
     are taken over the predicted frames only, while the curves (positions, flow, mixing,
     discharge) span the whole rollout.
 
+    What the scene is comes from ``truth.scene.kind``: a ``hopper`` splits the mixing classes
+    along z and has a discharge rate through its outlet (``params["outlet_z"]``, default 0); a
+    ``drum`` splits them across its rotation axis (its rotating wall's ``motion.axis``) and has
+    a dynamic angle of repose; ``other`` has neither, and the metrics it cannot have are skipped
+    with a warning that names them. Leaked particles are those whose centre went through the
+    scene's walls (:func:`granular_pyg.metrics.leaked_mask`).
+
     Args:
         truth: LIGGGHTS ground truth with its Scene.
         pred: a rollout of ``truth`` (``granular_pyg.inference.rollout_trajectory``).
@@ -80,22 +105,28 @@ def evaluate_pair(
     if steps < 1:
         raise InputError("pred: has no predicted frame beyond its initial states")
 
-    emd_steps = metrics.emd_at_powers(t_pos[first - 1 :], p_pos[first - 1 :])
+    scene = truth.scene
+    sink = metrics.outlet_point(scene)
+    emd_steps = metrics.emd_at_powers(t_pos[first - 1 :], p_pos[first - 1 :], sink=sink)
     both = np.isfinite(t_pos[first:]).all(-1) & np.isfinite(p_pos[first:]).all(-1)
     diff = (t_pos[first:] - p_pos[first:])[both]
     mean_t, mean_p = metrics.centre_of_mass(t_pos), metrics.centre_of_mass(p_pos)
 
-    kind = truth.scene.name
-    axis = MIXING_AXIS.get(kind, 0)
+    skipped: list[str] = []
+    axis = _mixing_axis(scene)
     # The paper's t0, or the last frame the truth still has particles (a drained hopper).
     occupied = np.flatnonzero(np.isfinite(t_pos).all(-1).any(-1))
     if occupied.size == 0:
         raise InputError("truth: no particle is present in any frame of the rollout's span")
     after = np.flatnonzero(pred.times >= MIXING_TIME_S - 1e-9)
     mixing_frame = min(int(after[0]) if after.size else len(pred.times) - 1, int(occupied[-1]))
-    classes = metrics.mixing_classes(t_pos, frame=mixing_frame, axis=axis)
-    ent_t = metrics.mixing_entropy_curve(t_pos, classes)
-    ent_p = metrics.mixing_entropy_curve(p_pos, classes)
+    if axis is None:
+        skipped.append(f"mixing entropy (no mixing axis for {_kind(scene)})")
+        ent_t = ent_p = np.full(len(pred.times), np.nan)
+    else:
+        classes = metrics.mixing_classes(t_pos, frame=mixing_frame, axis=axis)
+        ent_t = metrics.mixing_entropy_curve(t_pos, classes)
+        ent_p = metrics.mixing_entropy_curve(p_pos, classes)
 
     z_all = np.concatenate([t_pos[..., 2][np.isfinite(t_pos[..., 2])]])
     z_range = (float(z_all.min()), float(z_all.max())) if len(z_all) else (0.0, 1.0)
@@ -106,15 +137,17 @@ def evaluate_pair(
     closest = float(truth.radii.min())
     crushed_p = metrics.crushed_particles(p_pos[first:], closest)
     crushed_t = metrics.crushed_particles(t_pos[first:], closest)
-    leaked_p = metrics.leaked_particles(p_pos, truth.scene, pred.times, truth.radii)
-    leaked_t = metrics.leaked_particles(t_pos, truth.scene, pred.times, truth.radii)
+    walls = WallSet(scene)
+    leaked_p = metrics.leaked_particles(p_pos, scene, pred.times, walls=walls)
+    leaked_t = metrics.leaked_particles(t_pos, scene, pred.times, walls=walls)
     scalars = {
         "steps": float(steps),
-        "emd_final": metrics.emd(t_pos[-1], p_pos[-1]) if both[-1].any() else float("nan"),
+        "emd_final": metrics.emd(t_pos[-1], p_pos[-1], sink=sink),
         "emd_mean": float(np.mean(list(emd_steps.values()))) if emd_steps else float("nan"),
+        "emd_frames": float(len(emd_steps)),
         "position_mse": float(np.mean(diff**2)) if diff.size else float("nan"),
         "mean_position_error": float(np.nanmean(np.linalg.norm(mean_t - mean_p, axis=1))),
-        "mixing_entropy_error": float(np.nanmean(np.abs(ent_t - ent_p))),
+        "mixing_entropy_error": _nanmean(np.abs(ent_t - ent_p)),
         "flow_profile_error": float(np.nanmean(np.abs(prof_t - prof_p))),
         "leaked_particles": float(leaked_p),
         "leaked_particles_truth": float(leaked_t),
@@ -133,8 +166,36 @@ def evaluate_pair(
         "entropy_truth": ent_t,
         "entropy_pred": ent_p,
     }
-    observable = _scene_observable(truth, t_pos, p_pos, pred.times, scalars, series)
+    observable = _scene_observable(truth, t_pos, p_pos, pred.times, scalars, series, skipped)
+    if skipped:
+        warnings.warn(
+            f"evaluate_pair: scene {scene.name!r} (kind {scene.kind!r}): skipped "
+            + "; ".join(skipped)
+            + "; their scalars are NaN",
+            stacklevel=2,
+        )
     return PairEvaluation(scalars, emd_steps, series, observable, mixing_frame)
+
+
+def _kind(scene: Scene) -> str:
+    return f"a scene of kind {scene.kind!r}"
+
+
+def _mixing_axis(scene: Scene) -> int | None:
+    """The axis that splits the mixing classes: z in a hopper, the horizontal axis across a
+    drum's rotation axis; None for other scenes and drums without a horizontal rotation."""
+    if scene.kind == "hopper":
+        return HOPPER_MIXING_AXIS
+    if scene.kind == "drum":
+        axis = metrics.drum_axis(scene)
+        return None if axis is None else 1 - axis
+    return None
+
+
+def _nanmean(values: np.ndarray) -> float:
+    """Mean of the finite values, NaN (without a warning) when there is none."""
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else float("nan")
 
 
 def _mean_vz(vel: np.ndarray) -> np.ndarray:
@@ -143,27 +204,46 @@ def _mean_vz(vel: np.ndarray) -> np.ndarray:
     return np.where(count > 0, np.nansum(vz, 1) / np.maximum(count, 1), np.nan)
 
 
-def _scene_observable(truth, t_pos, p_pos, times, scalars, series) -> tuple[str, str]:
-    """Hopper: discharged fraction and mass flow rate; drum: dynamic angle of repose."""
+def _scene_observable(truth, t_pos, p_pos, times, scalars, series, skipped) -> tuple[str, str]:
+    """Hopper: discharged fraction and mass flow rate; drum: dynamic angle of repose; other:
+    the fraction of particles that left (no rate, no angle: their scalars are NaN)."""
     scene = truth.scene
-    if scene.name == "drum":
-        ang_t = _angles(t_pos)
-        ang_p = _angles(p_pos)
+    if scene.kind == "drum":
+        axis = metrics.drum_axis(scene)
+        if axis is None:
+            skipped.append(
+                "dynamic angle of repose (no wall of the drum turns about a horizontal axis)"
+            )
+            scalars |= dict.fromkeys(ANGLE_SCALARS, float("nan"))
+            series["angle_truth"] = series["angle_pred"] = np.full(len(times), np.nan)
+            return "angle", "dynamic angle of repose (deg)"
+        ang_t = _angles(t_pos, axis)
+        ang_p = _angles(p_pos, axis)
         series["angle_truth"], series["angle_pred"] = ang_t, ang_p
         late = slice(len(times) // 2, None)
-        a_t, a_p = float(np.nanmedian(ang_t[late])), float(np.nanmedian(ang_p[late]))
-        with warnings.catch_warnings():  # no frame with a surface in both: NaN
+        with warnings.catch_warnings():  # no frame with a surface: NaN
             warnings.simplefilter("ignore", RuntimeWarning)
-            curve = float(np.nanmean(np.abs(ang_p[late] - ang_t[late])))
+            a_t, a_p = float(np.nanmedian(ang_t[late])), float(np.nanmedian(ang_p[late]))
         scalars |= {
             "angle_of_repose_truth_deg": a_t,
             "angle_of_repose_pred_deg": a_p,
             "angle_of_repose_error_deg": abs(a_p - a_t),
             # Frame by frame: a bed that swings about the right median shows here.
-            "angle_of_repose_curve_error_deg": curve,
+            "angle_of_repose_curve_error_deg": _nanmean(np.abs(ang_p[late] - ang_t[late])),
         }
         return "angle", "dynamic angle of repose (deg)"
-    outlet_z = float(scene.params.get("outlet_z", 0.0))
+    if scene.kind != "hopper":
+        skipped += [
+            f"discharge rate (no outlet for {_kind(scene)})",
+            f"dynamic angle of repose (no drum for {_kind(scene)})",
+        ]
+        scalars |= dict.fromkeys(DISCHARGE_SCALARS + ANGLE_SCALARS, float("nan"))
+        # Particles below the outflow plane or gone, whatever the equipment.
+        outflow = -np.inf if scene.outflow_z is None else float(scene.outflow_z)
+        series["discharged_truth"] = metrics.discharged_fraction(t_pos, outflow)
+        series["discharged_pred"] = metrics.discharged_fraction(p_pos, outflow)
+        return "discharged", "fraction of the particles that left"
+    outlet_z = metrics.outlet_height(scene)
     series["discharged_truth"] = metrics.discharged_fraction(t_pos, outlet_z)
     series["discharged_pred"] = metrics.discharged_fraction(p_pos, outlet_z)
     density = scene.materials.density
@@ -179,9 +259,9 @@ def _scene_observable(truth, t_pos, p_pos, times, scalars, series) -> tuple[str,
     return "discharged", "discharged fraction"
 
 
-def _angles(pos: np.ndarray) -> np.ndarray:
+def _angles(pos: np.ndarray, axis: int) -> np.ndarray:
     out = np.full(len(pos), np.nan)
     for i, frame in enumerate(pos):
         with contextlib.suppress(InputError):
-            out[i] = metrics.dynamic_angle_of_repose(frame)
+            out[i] = metrics.dynamic_angle_of_repose(frame, axis=axis)
     return out

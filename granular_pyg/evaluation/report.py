@@ -21,6 +21,7 @@ __all__ = ["EvaluatedRollout", "write_evaluation"]
 #: Scalars the report's table shows, with their units.
 HEADLINE = {
     "emd_mean": "m^2",
+    "emd_frames": "",
     "emd_final": "m^2",
     "position_mse": "m^2",
     "mean_position_error": "m",
@@ -173,8 +174,13 @@ def _markdown(rollouts, means, info, figures, out: Path) -> str:
         f"- model: `{info.get('ckpt', '?')}` (variant {info.get('variant', '?')})",
         f"- command: `{info.get('command', '')}`",
         "- EMD: W2^2 (POT `ot.emd2` on squared Euclidean costs, uniform weights), at learned "
-        "steps 2^k; errors are absolute differences of the curves, relative for the "
+        "steps 2^k, every step the rollout has (`emd_frames` of them): where one side has "
+        "drained and the other has not, the remaining particles' mean squared distance to the "
+        "outlet point; errors are absolute differences of the curves, relative for the "
         "discharge rate.",
+        "- leaked particles: centres that crossed a wall's triangle between two frames (walls "
+        "posed at their times), lay outside the walls in their first frame, or left the "
+        "simulation box other than through the outflow floor.",
         "",
         "## Means per split",
         "",

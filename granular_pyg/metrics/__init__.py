@@ -1,28 +1,30 @@
 """Metrics on Trajectories: pure functions on positions ``[T, N, 3]`` (m), NaN once gone.
 
-- :mod:`~granular_pyg.metrics.emd`: the paper's EMD (W2^2 with POT, or W1) and EMD at 2^k.
-- :mod:`~granular_pyg.metrics.flow`: position MSE, mixing entropy, flow profiles, discharge rate,
-  leakage.
+- :mod:`~granular_pyg.metrics.emd`: the paper's EMD (W2^2 with POT, or W1), EMD at 2^k and the
+  outlet point that stands in for the particles that left.
+- :mod:`~granular_pyg.metrics.flow`: position MSE, mixing entropy, flow profiles, discharge rate.
+- :mod:`~granular_pyg.metrics.leaks`: particles whose centre went through the Scene's walls.
 - :mod:`~granular_pyg.metrics.physics`: discharged fraction, centre of mass, angle of repose,
-  crushed particles.
+  crushed particles, and the hopper's outlet height and drum's axis from a Scene.
 """
 
-from granular_pyg.metrics.emd import emd, emd_at_powers
+from granular_pyg.metrics.emd import emd, emd_at_powers, outlet_point
 from granular_pyg.metrics.flow import (
     discharge_rate,
     flow_profile,
-    leaked_mask,
-    leaked_particles,
     mixing_classes,
     mixing_entropy,
     mixing_entropy_curve,
     position_mse,
 )
+from granular_pyg.metrics.leaks import leaked_mask, leaked_particles
 from granular_pyg.metrics.physics import (
     centre_of_mass,
     crushed_particles,
     discharged_fraction,
+    drum_axis,
     dynamic_angle_of_repose,
+    outlet_height,
 )
 
 __all__ = [
@@ -30,6 +32,7 @@ __all__ = [
     "crushed_particles",
     "discharge_rate",
     "discharged_fraction",
+    "drum_axis",
     "dynamic_angle_of_repose",
     "emd",
     "emd_at_powers",
@@ -39,5 +42,7 @@ __all__ = [
     "mixing_classes",
     "mixing_entropy",
     "mixing_entropy_curve",
+    "outlet_height",
+    "outlet_point",
     "position_mse",
 ]

@@ -1,22 +1,18 @@
-"""Flow observables on positions ``[T, N, 3]`` (m): mixing, flow profiles, discharge, leakage.
+"""Flow observables on positions ``[T, N, 3]`` (m): mixing, flow profiles, discharge.
 
-Every function is pure NumPy and takes NaN rows as particles that have left the scene.
+Every function is pure NumPy and takes NaN rows as particles that have left the scene. Leaked
+particles (through the Scene's walls) are in :mod:`granular_pyg.metrics.leaks`.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from granular_pyg.errors import InputError
-from granular_pyg.scenes import Scene
 
 __all__ = [
     "discharge_rate",
     "flow_profile",
-    "leaked_mask",
-    "leaked_particles",
     "mixing_classes",
     "mixing_entropy",
     "mixing_entropy_curve",
@@ -195,62 +191,3 @@ def discharge_rate(
     t, m = times[inside], discharged[inside]
     rate = float(np.polyfit(t, m, 1)[0])
     return rate, (float(t[0]), float(t[-1]))
-
-
-def leaked_mask(
-    positions: np.ndarray, scene: Scene, times: np.ndarray, tolerance: float = 0.0
-) -> np.ndarray:
-    """``[T, N]`` bool: particle centres outside the container, more than ``tolerance`` (m).
-
-    A centre has leaked when it lies outside the scene's box or beyond a wall of the container:
-    for the ``drum`` farther from the axis than its radius or past its end caps; for the
-    ``hopper`` outside the V or the front/back walls above the outlet, or below the outlet while
-    the lid is still there. Other scenes use the box only. Particles that have left (NaN) and
-    hopper particles falling below an open outlet have not leaked.
-    """
-    positions = _check_positions("positions", positions)
-    times = np.asarray(times, dtype=np.float64)
-    if times.shape != positions.shape[:1]:
-        raise InputError(f"times: expected shape [{len(positions)}], got {list(times.shape)}")
-    x, y, z = np.moveaxis(positions, -1, 0)
-    present = np.isfinite(positions).all(-1)
-    lo = np.asarray(scene.domain_lo) - tolerance
-    hi = np.asarray(scene.domain_hi) + tolerance
-    with np.errstate(invalid="ignore"):
-        out = ((positions < lo) | (positions > hi)).any(-1)
-        p = scene.params
-        if scene.name == "drum":
-            out |= np.hypot(x, z) > p["drum_radius"] + tolerance
-            out |= np.abs(y) > p["length"] / 2 + tolerance
-        elif scene.name == "hopper":
-            tan_a = math.tan(math.radians(p["alpha_deg"]))
-            half_width = p["opening"] / 2 + np.maximum(z, 0.0) / tan_a
-            above = z >= 0
-            out |= above & (np.abs(x) > half_width + tolerance / math.sin(math.atan(tan_a)))
-            out |= above & (np.abs(y) > p["depth"] / 2 + tolerance)
-            lid_on = times < p["t_open"]
-            out |= lid_on[:, None] & (z < -tolerance)
-    return out & present
-
-
-def leaked_particles(
-    positions: np.ndarray, scene: Scene, times: np.ndarray, radii: np.ndarray | None = None
-) -> int:
-    """Number of particles that were outside the container in any frame.
-
-    A particle counts when its centre is beyond a wall by more than its radius (a particle
-    wholly through the wall); see :func:`leaked_mask`. ``radii`` ``[N]`` (m) default to 0.
-    """
-    positions = _check_positions("positions", positions)
-    tol = 0.0 if radii is None else np.asarray(radii, dtype=np.float64)
-    if np.ndim(tol) == 0:
-        return int(leaked_mask(positions, scene, times, float(tol)).any(0).sum())
-    # Per-particle tolerance: test with the smallest, then keep those past their own radius.
-    mask = leaked_mask(positions, scene, times, 0.0)
-    if not mask.any():
-        return 0
-    deep = np.zeros(positions.shape[1], dtype=bool)
-    for r in np.unique(tol):
-        cols = tol == r
-        deep[cols] = leaked_mask(positions[:, cols], scene, times, float(r)).any(0)
-    return int(deep.sum())

@@ -1,5 +1,6 @@
 """Physical observables engineers check: discharge, centre of mass, dynamic angle of repose,
-crushed particles."""
+crushed particles; and what a Scene's kind says about them (the hopper's outlet height, the
+drum's axis)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,35 @@ import math
 import numpy as np
 
 from granular_pyg.errors import InputError
+from granular_pyg.scenes import Scene
 
-__all__ = ["centre_of_mass", "crushed_particles", "discharged_fraction", "dynamic_angle_of_repose"]
+__all__ = [
+    "centre_of_mass",
+    "crushed_particles",
+    "discharged_fraction",
+    "drum_axis",
+    "dynamic_angle_of_repose",
+    "outlet_height",
+]
+
+
+def outlet_height(scene: Scene) -> float:
+    """Height (m) of a hopper's outlet: ``params["outlet_z"]``, 0 when absent (the built-in
+    hopper puts its outlet at z = 0; a mesh scene stores its own)."""
+    return float(scene.params.get("outlet_z", 0.0))
+
+
+def drum_axis(scene: Scene) -> int | None:
+    """Index (0 = x, 1 = y) of the horizontal axis a drum turns about: the largest component of
+    the first rotating wall's ``motion.axis``; None when no wall rotates or the axis is closer to
+    vertical than to x or y (no free surface across it)."""
+    for wall in scene.walls:
+        motion = wall.motion
+        if motion.kind == "rotation" and motion.omega != 0.0:
+            axis = np.abs(np.asarray(motion.axis, dtype=np.float64))
+            index = int(np.argmax(axis))
+            return index if index < 2 else None
+    return None
 
 
 def discharged_fraction(positions: np.ndarray, outlet_z: float = 0.0) -> np.ndarray:

@@ -9,6 +9,7 @@ import torch
 
 from granular_pyg.errors import InputError
 from granular_pyg.geometry import (
+    SegmentCrossings,
     WallIndex,
     argmin_per_group,
     segment_triangle_crossings,
@@ -168,9 +169,85 @@ class WallSet:
             active = rows
         return p1.to(dtype), int(corrected.sum())
 
+    def crossings(
+        self,
+        start: torch.Tensor,
+        end: torch.Tensor,
+        start_time: float,
+        end_time: float,
+        radius: float | None = None,
+    ) -> torch.Tensor:
+        """Which moves ``start -> end`` carry a centre through a wall present at ``end_time``.
+
+        The test of :meth:`contain` without its skin and without correcting anything: the start
+        is posed at ``start_time`` and the end at ``end_time`` (a centre carried along by a
+        rotating drum never crosses it), only the triangles near each move are tested (the
+        wall index's candidates), and a move crosses a triangle when it starts off its plane
+        and ends on it or past it, through the triangle or its edges
+        (:func:`~granular_pyg.geometry.segment_triangle_crossings`). Rows with NaN never cross.
+
+        Args:
+            start: ``[P, 3]`` positions at ``start_time`` (m, world frame).
+            end: ``[P, 3]`` positions at ``end_time`` (m).
+            start_time: recorded time of ``start`` (s).
+            end_time: recorded time of ``end`` (s); the walls present then count.
+            radius: the smallest wall-index query radius (m), longer moves query with it times
+                a power of two; default 1/64 of the walls' bounding-box diagonal.
+
+        Returns:
+            ``[P]`` bool (the test runs in float64 whatever the inputs' dtype).
+        """
+        p0, p1 = start.double(), end.double()
+        crossed = torch.zeros(p0.shape[0], dtype=torch.bool)
+        rows = (torch.isfinite(p0).all(1) & torch.isfinite(p1).all(1)).nonzero().squeeze(1)
+        if rows.numel() == 0 or not self.walls:
+            return crossed
+        base = self._default_radius() if radius is None else float(radius)
+        no_skin = torch.zeros(rows.numel(), dtype=torch.float64)
+        for cand, _, _ in self._crossing_pairs(
+            p0[rows], p1[rows], start_time, end_time, no_skin, base
+        ):
+            crossed[rows[cand]] = True
+        return crossed
+
+    def _default_radius(self) -> float:
+        """1/64 of the diagonal of the walls' bounding box in their mesh frames (m), computed
+        once."""
+        if getattr(self, "_crossing_radius", None) is None:
+            points = torch.cat([index.vertices.double() for index in self.indices])
+            diagonal = float(torch.linalg.vector_norm(points.max(0).values - points.min(0).values))
+            self._crossing_radius = diagonal / 64 if diagonal > 0 else 1.0
+        return self._crossing_radius
+
     def _first_crossing_fix(self, p0, p1, t0, t1, margin, base):
         """``(rows, corrected ends)`` of the particles whose move crosses a wall, or None."""
         found = []  # (particle, fraction along the move, corrected end in the world frame)
+        for cand, hit, (q1, rot1, shift1) in self._crossing_pairs(
+            p0, p1, t0, t1, GUARD_SKIN * margin, base
+        ):
+            gap = torch.minimum(hit.start_distance, margin[cand])
+            gap = torch.maximum(gap, 2 * GUARD_SKIN * margin[cand])
+            push = (gap + hit.end_depth).unsqueeze(1) * hit.normal
+            found.append((cand, hit.fraction, (q1[cand] + push) @ rot1.T + shift1))
+        if not found:
+            return None
+        cand, frac, moved = (torch.cat(col) for col in zip(*found, strict=True))
+        rows, first = argmin_per_group(frac, cand)  # each particle's first crossing
+        return rows, moved[first]
+
+    def _crossing_pairs(self, p0, p1, t0, t1, skin, base):
+        """The (move, triangle) pairs whose move crosses the triangle, wall by wall.
+
+        Moves ``p0 [P, 3] -> p1 [P, 3]`` (float64, world frame, finite) against the walls
+        present at ``t1``, the start posed at ``t0`` and the end at ``t1``; ``skin [P]`` (m) as
+        in :func:`~granular_pyg.geometry.segment_triangle_crossings`; ``base`` the smallest
+        wall-index query radius (m).
+
+        Yields:
+            ``(rows [K], crossings, (q1 [P, 3], rot1, shift1))``: the moves' rows, their
+            :class:`~granular_pyg.geometry.SegmentCrossings` (crossing pairs only) and the
+            wall's mesh-frame ends and pose at ``t1``.
+        """
         for wall, index, normals in zip(self.walls, self.indices, self.normals, strict=True):
             if not wall.present(t1):
                 continue
@@ -188,22 +265,13 @@ class WallSet:
                 origin, normal = index.triangles[tri, 0].double(), normals[tri].double()
                 a = ((q0[cand] - origin) * normal).sum(1)
                 b = ((q1[cand] - origin) * normal).sum(1)
-                side = (a != 0) & (torch.sign(a) * b <= GUARD_SKIN * margin[cand])
+                side = (a != 0) & (torch.sign(a) * b <= skin[cand])
                 cand, tri = cand[side], tri[side]
                 if cand.numel() == 0:
                     continue
                 hit = segment_triangle_crossings(
-                    q0[cand], q1[cand], index.triangles.double()[tri], GUARD_SKIN * margin[cand]
+                    q0[cand], q1[cand], index.triangles.double()[tri], skin[cand]
                 )
                 sel = hit.crosses
                 if bool(sel.any()):
-                    cand = cand[sel]
-                    gap = torch.minimum(hit.start_distance[sel], margin[cand])
-                    gap = torch.maximum(gap, 2 * GUARD_SKIN * margin[cand])
-                    push = (gap + hit.end_depth[sel]).unsqueeze(1) * hit.normal[sel]
-                    found.append((cand, hit.fraction[sel], (q1[cand] + push) @ rot1.T + shift1))
-        if not found:
-            return None
-        cand, frac, moved = (torch.cat(col) for col in zip(*found, strict=True))
-        rows, first = argmin_per_group(frac, cand)  # each particle's first crossing
-        return rows, moved[first]
+                    yield cand[sel], SegmentCrossings(*(x[sel] for x in hit)), (q1, rot1, shift1)

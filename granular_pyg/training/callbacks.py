@@ -7,7 +7,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from granular_pyg.inference import matching_frames, rollout_trajectory, time_step_multiple
-from granular_pyg.metrics import emd
+from granular_pyg.metrics import emd, outlet_point
 
 __all__ = ["RolloutValidation", "rollout_figure"]
 
@@ -35,11 +35,13 @@ def rollout_figure(truth: np.ndarray, pred: np.ndarray, title: str):
     return fig
 
 
-def _emd(truth: np.ndarray, pred: np.ndarray) -> float:
-    """W2^2 (m^2), NaN when either set is empty (a hopper drained in one but not the other)."""
-    if not (np.isfinite(truth).all(1).any() and np.isfinite(pred).all(1).any()):
+def _emd(truth: np.ndarray, pred: np.ndarray, sink: np.ndarray | None) -> float:
+    """W2^2 (m^2); where one side has drained and the other has not, the remaining particles'
+    move to the outlet point ``sink`` (:func:`~granular_pyg.metrics.emd`), NaN without one."""
+    drained = [not np.isfinite(x).all(1).any() for x in (truth, pred)]
+    if sink is None and drained[0] != drained[1]:
         return float("nan")
-    return emd(truth, pred)
+    return emd(truth, pred, sink=sink)
 
 
 class RolloutValidation(L.Callback):
@@ -79,10 +81,14 @@ class RolloutValidation(L.Callback):
         truth = traj.positions[matching_frames(traj, rollout)[first:]]
         both = np.isfinite(truth).all(-1) & np.isfinite(pred).all(-1)
         mse = float(np.mean((truth[both] - pred[both]) ** 2)) if both.any() else float("nan")
-        metrics = {"val_rollout/position_mse": mse, "val_rollout/emd": _emd(truth[-1], pred[-1])}
+        sink = outlet_point(traj.scene) if traj.scene is not None else None
+        metrics = {
+            "val_rollout/position_mse": mse,
+            "val_rollout/emd": _emd(truth[-1], pred[-1], sink),
+        }
         step = 1
         while step <= steps:
-            metrics[f"val_rollout/emd_step_{step}"] = _emd(truth[step - 1], pred[step - 1])
+            metrics[f"val_rollout/emd_step_{step}"] = _emd(truth[step - 1], pred[step - 1], sink)
             step *= 2
         for name, value in metrics.items():
             pl_module.log(name, value, rank_zero_only=True)

@@ -212,3 +212,112 @@ def test_evaluate_selects_files_by_glob_or_by_split(tmp_path):
     one = SAMPLES_DIR / "hopper" / "traj_0000.h5"
     with pytest.raises(InputError, match=r"is a file; .*trajectories="):
         selected_files(compose("evaluate", ["ckpt=x"]), str(one), None)
+
+
+def test_a_rollout_that_drains_twice_as_fast_scores_worse_on_the_same_frames(hopper):
+    """Frame f of the fast rollout is the truth's frame min(2f, T - 1): it empties the hopper
+    while the truth still holds particles. Those frames count (the remaining particles' move to
+    the outlet), so it scores worse than a rollout 1 mm off the truth, over as many frames."""
+    exact = _as_rollout(hopper, k=4, frames=50)
+    idx = np.minimum(2 * np.arange(50), 49)
+    fast = dataclasses.replace(
+        exact, positions=exact.positions[idx], velocities=2 * exact.velocities[idx]
+    )
+    offset = dataclasses.replace(exact, positions=exact.positions.copy())
+    offset.positions[6:, :, 0] += 0.001
+    ev_fast, ev_offset = evaluate_pair(hopper, fast), evaluate_pair(hopper, offset)
+    count = {
+        name: np.isfinite(traj.positions[5 + np.array([1, 2, 4, 8, 16, 32])]).all(-1).sum(1)
+        for name, traj in (("fast", fast), ("truth", exact))
+    }
+    assert ((count["fast"] == 0) & (count["truth"] > 0)).any()  # frames the old mean left out
+    assert ev_fast.scalars["emd_frames"] == ev_offset.scalars["emd_frames"] == 6
+    assert sorted(ev_fast.emd_steps) == sorted(ev_offset.emd_steps) == [1, 2, 4, 8, 16, 32]
+    assert ev_fast.scalars["emd_mean"] > ev_offset.scalars["emd_mean"] > 0
+
+
+def test_a_particle_moved_through_the_hopper_wall_is_one_leak(hopper):
+    pred = _as_rollout(hopper, frames=40)
+    pred.positions = pred.positions.copy()
+    stays = np.flatnonzero(np.isfinite(pred.positions).all((0, 2)))[0]
+    x_out = hopper.scene.domain_hi[0] - 0.001  # beyond the V, inside the box
+    pred.positions[20:, stays] = [x_out, 0.0, 0.05]
+    s = evaluate_pair(hopper, pred).scalars
+    assert s["leaked_particles"] == 1 and s["leaked_particles_truth"] == 0
+
+
+def test_a_scene_of_kind_other_skips_what_it_cannot_have_with_a_warning(hopper):
+    other = dataclasses.replace(hopper, scene=dataclasses.replace(hopper.scene, kind="other"))
+    with pytest.warns(UserWarning) as record:
+        ev = evaluate_pair(other, _as_rollout(other, k=2, frames=40))
+    [message] = [str(w.message) for w in record]
+    for name in ("mixing entropy", "discharge rate", "dynamic angle of repose"):
+        assert name in message
+    s = ev.scalars
+    skipped = ["mixing_entropy_error", "discharge_rate_rel_error", "angle_of_repose_error_deg"]
+    assert all(np.isnan(s[k]) for k in skipped)
+    assert s["emd_mean"] == pytest.approx(0, abs=1e-15)  # the others are still there
+    assert s["leaked_particles"] == 0
+    assert ev.observable[0] == "discharged" and ev.series["discharged_truth"][-1] > 0.5
+
+
+def _swap_xy(traj):
+    """The trajectory mirrored to exchange x and y, walls and rotation axis too (a mirror turns
+    the other way round)."""
+    swap = [1, 0, 2]
+    scene = traj.scene
+    walls = [
+        dataclasses.replace(
+            w,
+            vertices=w.vertices[:, swap],
+            motion=dataclasses.replace(
+                w.motion, axis=tuple(np.asarray(w.motion.axis)[swap]), omega=-w.motion.omega
+            ),
+        )
+        for w in scene.walls
+    ]
+    lo, hi = np.asarray(scene.domain_lo)[swap], np.asarray(scene.domain_hi)[swap]
+    scene = dataclasses.replace(scene, walls=walls, domain_lo=tuple(lo), domain_hi=tuple(hi))
+    return dataclasses.replace(
+        traj,
+        positions=traj.positions[..., swap],
+        velocities=traj.velocities[..., swap],
+        scene=scene,
+    )
+
+
+def test_the_drum_axis_comes_from_its_rotating_wall(drum):
+    """The same drum turning about x instead of y: the same angle of repose and mixing."""
+    pred = _as_rollout(drum, frames=120)
+    pred.positions = pred.positions.copy()
+    pred.positions[6:] += np.float32(0.001)
+    ev = evaluate_pair(drum, pred)
+    turned = _swap_xy(drum)
+    assert turned.scene.walls[0].motion.axis == (1.0, 0.0, 0.0)
+    ev_x = evaluate_pair(turned, _swap_xy(pred))
+    for key in ("angle_of_repose_truth_deg", "angle_of_repose_pred_deg", "mixing_entropy_error"):
+        assert ev_x.scalars[key] == pytest.approx(ev.scalars[key], rel=1e-9)
+    assert ev_x.scalars["leaked_particles_truth"] == 0
+
+
+def test_the_hopper_outlet_height_comes_from_its_params(hopper):
+    """The hopper and its bed lifted by 5 cm with params outlet_z = 0.05: the same discharge."""
+    lift = np.array([0.0, 0.0, 0.05])
+    scene = hopper.scene
+    walls = [dataclasses.replace(w, vertices=w.vertices + lift) for w in scene.walls]
+    raised = dataclasses.replace(
+        scene,
+        walls=walls,
+        domain_lo=tuple(np.asarray(scene.domain_lo) + lift),
+        domain_hi=tuple(np.asarray(scene.domain_hi) + lift),
+        outflow_z=scene.outflow_z + 0.05,
+        params={**scene.params, "outlet_z": 0.05},
+    )
+    lifted = dataclasses.replace(hopper, positions=hopper.positions + lift, scene=raised)
+    ev = evaluate_pair(hopper, _as_rollout(hopper, k=2, frames=60))
+    ev_up = evaluate_pair(lifted, _as_rollout(lifted, k=2, frames=60))
+    assert ev_up.scalars["discharge_rate_truth"] == pytest.approx(
+        ev.scalars["discharge_rate_truth"], rel=1e-6
+    )
+    assert ev_up.scalars["discharge_rate_truth"] > 0
+    assert ev_up.scalars["leaked_particles_truth"] == 0

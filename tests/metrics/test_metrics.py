@@ -18,11 +18,10 @@ from granular_pyg.metrics import (
     emd,
     emd_at_powers,
     flow_profile,
-    leaked_mask,
-    leaked_particles,
     mixing_classes,
     mixing_entropy,
     mixing_entropy_curve,
+    outlet_point,
     position_mse,
 )
 from granular_pyg.scenes import make_drum, make_hopper
@@ -59,11 +58,43 @@ def test_emd_matches_brute_force_assignment(n, seed):
 def test_emd_drops_particles_that_left_and_rejects_an_empty_set():
     a = np.array([[0.0, 0, 0], [1.0, 0, 0], [np.nan, np.nan, np.nan]])
     assert emd(a, a[:2]) == 0.0
-    with pytest.raises(InputError, match="empty"):
+    with pytest.raises(InputError, match=r"empty.*sink"):
         emd(a, np.full((2, 3), np.nan))
+    assert emd(np.full((2, 3), np.nan), np.full((3, 3), np.nan)) == 0.0  # both drained
 
 
-def test_emd_at_powers_takes_frames_two_to_the_k_while_both_have_them():
+@pytest.mark.parametrize("row", [[np.nan, 0.0, 0.0], [0.0, np.inf, 0.0], [0.0, 0.0, np.nan]])
+def test_emd_refuses_rows_with_nan_in_only_some_coordinates(row):
+    a = np.array([[0.0, 0, 0], [1.0, 0, 0], row])
+    with pytest.raises(InputError, match="only some coordinates"):
+        emd(a, a[:2])
+    with pytest.raises(InputError, match="only some coordinates"):
+        emd(a[:2], a)
+
+
+def test_an_empty_set_stands_at_the_sink():
+    """One side drained: the other's particles all move to the outlet point (the paper's EMD
+    against one particle there), for W2^2 and W1 and on either side."""
+    pts = np.array([[0.0, 0.0, 0.3], [0.4, 0.0, 0.0], [np.nan] * 3])
+    sink = np.array([0.0, 0.0, 0.0])
+    gone = np.full((3, 3), np.nan)
+    assert emd(pts, gone, sink=sink) == pytest.approx((0.09 + 0.16) / 2)
+    assert emd(gone, pts, sink=sink) == pytest.approx((0.09 + 0.16) / 2)
+    assert emd(pts, gone, squared=False, sink=sink) == pytest.approx((0.3 + 0.4) / 2)
+    # Continuous with one particle left at the sink.
+    assert emd(pts, sink[None], sink=sink) == emd(pts, gone, sink=sink)
+    with pytest.raises(InputError, match="sink"):
+        emd(pts, gone, sink=np.array([0.0, np.nan, 0.0]))
+
+
+def test_the_outlet_point_lies_on_the_outflow_under_the_lid():
+    hopper = make_hopper(num_particles=100)
+    assert outlet_point(hopper).tolist() == pytest.approx([0.0, 0.0, hopper.outflow_z])
+    drum = make_drum(num_particles=100)  # closed: the box's floor under its centre
+    assert outlet_point(drum).tolist() == pytest.approx([0.0, 0.0, drum.domain_lo[2]])
+
+
+def test_emd_at_powers_takes_every_frame_two_to_the_k():
     truth = np.zeros((20, 4, 3))
     pred = truth.copy()
     pred[:, :, 0] = np.arange(20)[:, None]  # frame f shifted by f along x
@@ -72,7 +103,14 @@ def test_emd_at_powers_takes_frames_two_to_the_k_while_both_have_them():
     assert out == {s: pytest.approx(float(s * s)) for s in (1, 2, 4, 8)}
     drained = truth.copy()
     drained[4:] = np.nan  # every particle has left the truth from frame 4 on
-    assert list(emd_at_powers(drained, pred)) == [1, 2]
+    with pytest.raises(InputError, match="sink"):
+        emd_at_powers(drained, pred)  # a drained frame is never silently left out
+    sink = np.array([0.0, 0.0, -1.0])
+    out = emd_at_powers(drained, pred, sink=sink)
+    assert list(out) == [1, 2, 4, 8, 16]
+    assert out[16] == pytest.approx(16.0**2 + 1.0)  # every pred particle to the sink
+    both = emd_at_powers(drained, drained, sink=sink)
+    assert list(both) == [1, 2, 4, 8, 16] and both[8] == 0.0  # both drained: equal
 
 
 # --- position error -------------------------------------------------------------------------
@@ -170,38 +208,6 @@ def test_angle_of_repose_of_a_synthetic_tilted_bed(angle):
     assert abs(got - angle) < 0.5
 
 
-# --- leakage --------------------------------------------------------------------------------
-
-
-def test_leakage_counts_particles_through_the_drum_wall():
-    scene = make_drum(num_particles=100)
-    r = scene.params["drum_radius"]
-    pos = np.zeros((3, 4, 3))
-    pos[1, 1] = [r + 0.001, 0, 0]  # 1 mm outside the shell in frame 1
-    pos[2, 2] = [0, scene.params["length"], 0]  # beyond an end cap
-    pos[:, 3] = np.nan  # never present
-    times = np.arange(3) * scene.frame_dt
-    assert leaked_mask(pos, scene, times).sum() == 2
-    assert leaked_particles(pos, scene, times) == 2
-    # Counted only when wholly through the wall: radius 2 mm > 1 mm overshoot.
-    assert leaked_particles(pos, scene, times, radii=np.full(4, 0.002)) == 1
-
-
-def test_leakage_in_the_hopper_respects_the_lid_and_the_v():
-    scene = make_hopper(num_particles=100)
-    p = scene.params
-    t_open = p["t_open"]
-    times = np.array([0.0, t_open + 0.01])
-    pos = np.zeros((2, 3, 3))
-    pos[:, 0] = [0.0, 0.0, -0.01]  # below the outlet: leaked before t_open, falling after
-    z = 0.02
-    half = p["opening"] / 2 + z / math.tan(math.radians(p["alpha_deg"]))
-    pos[:, 1] = [half + 0.003, 0.0, z]  # outside the inclined wall
-    pos[:, 2] = [0.0, 0.0, z]  # inside
-    mask = leaked_mask(pos, scene, times)
-    assert mask.tolist() == [[True, True, False], [False, True, False]]
-
-
 def test_crushed_particles_counts_centres_closer_than_the_distance():
     frame = np.array(
         [[0.0, 0, 0], [0.001, 0, 0], [0.01, 0, 0], [0.012, 0, 0], [np.nan, np.nan, np.nan]]
@@ -223,3 +229,24 @@ def test_crushed_particles_matches_brute_force():
         assert counts[f] == int((d < 0.0015).any(1).sum())
     with pytest.raises(InputError, match="distance"):
         crushed_particles(pos, 0.0)
+
+
+# --- what a scene's kind says -----------------------------------------------------------------
+
+
+def test_the_drum_axis_comes_from_the_rotating_wall():
+    import dataclasses
+
+    from granular_pyg.metrics import drum_axis, outlet_height
+    from granular_pyg.scenes import WallMotion
+
+    drum = make_drum(num_particles=100)
+    assert drum_axis(drum) == 1
+    for axis, expected in [((1.0, 0.0, 0.0), 0), ((0.2, -0.9, 0.1), 1), ((0.1, 0.1, 1.0), None)]:
+        wall = dataclasses.replace(drum.walls[0], motion=WallMotion("rotation", axis=axis, omega=2))
+        assert drum_axis(dataclasses.replace(drum, walls=[wall])) == expected
+    hopper = make_hopper(num_particles=100)
+    assert drum_axis(hopper) is None
+    assert outlet_height(hopper) == 0.0  # the builder's outlet
+    hopper.params["outlet_z"] = 0.02
+    assert outlet_height(hopper) == 0.02
