@@ -38,7 +38,7 @@ def test_the_readme_is_short_and_cites_only_files_in_the_repository():
 @pytest.mark.slow
 def test_the_quickstart_runs_as_written(tmp_path):
     """Four real LIGGGHTS hopper runs (200 particles, 0.1 s) laid out as a user's folders
-    ``run0..run3/{dumps/, *.stl}``; then each quickstart line, with ``<time>`` replaced by the
+    ``run0..run3/{dumps/, *.stl, in.liggghts}``; then each quickstart line, with ``<time>`` replaced by the
     training run's folder."""
     made = tmp_path / "made"
     cfg = compose(
@@ -61,6 +61,7 @@ def test_the_quickstart_runs_as_written(tmp_path):
         work, run = made / ".work" / f"traj_{i:04d}", tmp_path / f"run{i}"
         (run / "dumps").mkdir(parents=True)
         shutil.copy(work / "traj.dump", run / "dumps")
+        shutil.copy(work / "in.liggghts", run)
         for stl in work.glob("*.stl"):
             shutil.copy(stl, run)
     env = os.environ | {"PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}"}
