@@ -10,6 +10,7 @@ atomic). ``jobs`` serial LIGGGHTS runs go at a time.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import queue
@@ -56,25 +57,34 @@ def _sample(rng: np.random.Generator, low, high):
 
 
 def plan_trajectories(cfg: DictConfig) -> list[dict[str, Any]]:
-    """One entry per trajectory: file name, split, seed and the scene-builder parameters."""
+    """One entry per trajectory: file name, split, seed and the scene-builder parameters.
+
+    ``scene.ranges`` maps a parameter to ``[low, high]``, sampled uniformly per trajectory
+    (integers when both bounds are); a dotted key (``materials.friction``) reaches into a
+    nested parameter."""
     build = OmegaConf.to_container(cfg.scene.build, resolve=True)
     ranges = cfg.scene.get("ranges")
-    ranges = OmegaConf.to_container(ranges, resolve=True) if ranges else {}
-    unknown = set(ranges) - set(build)
+    ranges = flatten(OmegaConf.to_container(ranges, resolve=True)) if ranges else {}
+    known = {k for k in flatten(build) if not k.startswith("_")} | set(build)
+    unknown = set(ranges) - known
     if unknown:
         raise InputError(
             f"scene.ranges: {sorted(unknown)} are not parameters of {build['_target_']}; "
-            f"choose from {sorted(k for k in build if not k.startswith('_'))}"
+            f"choose from {sorted(k for k in known if not k.startswith('_'))}"
         )
     counts = split_counts(int(cfg.n), cfg.splits)
     splits = ["train"] * counts["train"] + ["valid"] * counts["valid"] + ["test"] * counts["test"]
     plan = []
     for i, split in enumerate(splits):
         rng = np.random.default_rng([int(cfg.seed), i])
-        params = dict(build)
+        params = copy.deepcopy(build)
         for key in sorted(ranges):
             low, high = ranges[key]
-            params[key] = _sample(rng, low, high)
+            *path, leaf = key.split(".")  # a dotted key reaches into a nested parameter
+            node = params
+            for part in path:
+                node = node[part]
+            node[leaf] = _sample(rng, low, high)
         plan.append(
             {
                 "file": f"traj_{i:04d}.h5",
@@ -222,13 +232,15 @@ def _manifest(cfg: DictConfig, plan: list[dict], recorded: dict, timings: dict |
     """The manifest of ``plan``: settings, splits, and per trajectory its timing and digest
     (from this run, else as ``recorded`` by an earlier one)."""
     timings = timings or {}
+    family = str(cfg.get("family") or cfg.scene.name)
     entries = []
     for e in plan:
         done = timings.get(e["file"]) or (recorded.get(e["file"]) or {}).get("timing")
         sha = (done or {}).pop("sha256", None) or (recorded.get(e["file"]) or {}).get("sha256")
-        entries.append(e | {"timing": done, "sha256": sha})
+        entries.append(e | {"family": family, "timing": done, "sha256": sha})
     return {
         "scene": cfg.scene.name,
+        "family": family,
         "n": len(plan),
         "seed": int(cfg.seed),
         "split_fractions": {k: float(v) for k, v in cfg.splits.items()},

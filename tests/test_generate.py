@@ -140,3 +140,33 @@ def test_killed_generation_leaves_no_partial_file_and_resumes(tmp_path):
     assert not list(out.glob("*.h5")) and not list(out.glob(".*.tmp"))
     subprocess.run(cmd, cwd=REPO, check=True, timeout=300)
     assert read_trajectory(out / "traj_0000.h5").num_frames == 101  # 0.5 s every 5 ms
+
+
+def test_nested_parameters_are_sampled_through_dotted_range_keys():
+    plan = plan_trajectories(
+        _cfg(
+            "n=3",
+            "+scene.ranges.materials.friction=[0.3,0.7]",
+            "+scene.ranges.bin_height=[0.0,0.05]",
+        )
+    )
+    frictions = [e["params"]["materials"]["friction"] for e in plan]
+    assert all(0.3 <= f <= 0.7 for f in frictions) and len(set(frictions)) == 3
+    assert all(e["params"]["materials"]["restitution"] == 0.6 for e in plan)
+    with pytest.raises(InputError, match=r"materials.colour"):
+        plan_trajectories(_cfg("+scene.ranges.materials.colour=[1,2]"))
+
+
+@pytest.mark.slow
+def test_a_wedge_hopper_under_a_bin_generates_and_keeps_every_particle_inside(tmp_path):
+    from granular_pyg.metrics import leaked_particles
+
+    out = tmp_path / "bin"
+    generate(_cfg(*TINY, "n=1", f"out={out}", "scene.build.bin_height=0.03", "family=wedge_bin"))
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert (
+        manifest["family"] == "wedge_bin" and manifest["trajectories"][0]["family"] == "wedge_bin"
+    )
+    traj = read_trajectory(out / "traj_0000.h5")
+    assert traj.scene.params["bin_height"] == 0.03 and traj.scene.domain_hi[2] > 0.13
+    assert leaked_particles(traj.positions, traj.scene, traj.times) == 0

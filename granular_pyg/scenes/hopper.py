@@ -53,6 +53,7 @@ def make_hopper(
     opening: float = 0.02,
     depth: float = 0.03,
     height: float = 0.1,
+    bin_height: float = 0.0,
     num_particles: int = 2000,
     particle_radius: float = 0.0015,
     fill_bottom: float | None = None,
@@ -72,14 +73,17 @@ def make_hopper(
         alpha_deg: angle of the inclined walls to the x-y plane (deg), in (30, 90).
         opening: outlet slot width in x at z = 0 (m); the slot spans the full depth in y.
         depth: distance between the vertical walls (m).
-        height: height of the walls' top edge above the outlet (m).
+        height: height of the inclined walls' top edge above the outlet (m).
+        bin_height: height (m) of a vertical bin on top of the V (its walls continue the
+            V's top edges straight up); 0: none.
         num_particles: particles inserted into the fill region.
         particle_radius: (m).
         fill_bottom: lower edge of the fill region (m above the outlet); particles are rained
             into the box between ``fill_bottom`` and ``fill_top`` that fits inside the V. By
             default two radii above the estimated settled bed (packing 0.6), so that later
             batches never land inside the bed.
-        fill_top: upper edge of the fill region (m); defaults to ``height - 2 radius``.
+        fill_top: upper edge of the fill region (m); defaults to ``height + bin_height -
+            2 radius``.
         t_open: recorded time (s) at which the lid is removed.
         duration, frame_dt, dem_dt, settle_time: see :class:`Scene` (s).
         outflow_depth: the outflow plane lies this far below the outlet (m).
@@ -95,6 +99,8 @@ def make_hopper(
         raise InputError(f"alpha_deg: expected a value in (30, 90), got {alpha_deg}")
     if opening <= 2 * particle_radius:
         raise InputError(f"opening ({opening} m) must exceed one particle diameter")
+    if not (math.isfinite(bin_height) and bin_height >= 0):
+        raise InputError(f"bin_height: expected a height >= 0 (m), got {bin_height}")
     if not 0 < t_open < duration:
         raise InputError(f"t_open ({t_open} s) must lie inside the recorded time (0, {duration})")
     tan_a = math.tan(math.radians(alpha_deg))
@@ -113,6 +119,16 @@ def make_hopper(
         parts.append(
             _quad_strip(np.array([(-o, y, 0), (o, y, 0), (w, y, h), (-w, y, h)], float), n_w, n_h)
         )
+    if bin_height > 0:
+        # The bin: vertical walls on the V's top edges (x = +-w) and on to the front/back walls.
+        top, n_b = h + bin_height, _cells(bin_height, element_size)
+        for x in (-w, w):
+            ys = (-d, d) if x < 0 else (d, -d)  # normals point inwards, as the V's walls
+            corners = [(x, ys[0], h), (x, ys[1], h), (x, ys[1], top), (x, ys[0], top)]
+            parts.append(_quad_strip(np.array(corners, float), n_y, n_b))
+        for y in (-d, d):
+            corners = [(-w, y, h), (w, y, h), (w, y, top), (-w, y, top)]
+            parts.append(_quad_strip(np.array(corners, float), _cells(2 * w, element_size), n_b))
     hopper = trimesh.util.concatenate(parts)
     hopper.merge_vertices()
     lid = _quad_strip(
@@ -122,14 +138,15 @@ def make_hopper(
     )
 
     r = particle_radius
-    fill_top = h - 2 * r if fill_top is None else fill_top
+    fill_top = h + bin_height - 2 * r if fill_top is None else fill_top
     if fill_bottom is None:
         # Bed height z of the settled particles: depth * (opening z + z^2 / tan(alpha)) = V.
         bed = num_particles * (4.0 / 3.0) * math.pi * r**3 / PACKING / depth
         fill_bottom = (-opening + math.sqrt(opening**2 + 4 * bed / tan_a)) / (2 / tan_a) + 2 * r
-    if not 0 <= fill_bottom < fill_top - 4 * r <= h:
+    if not 0 <= fill_bottom < fill_top - 4 * r <= h + bin_height:
         raise InputError(
-            f"fill region [{fill_bottom:.4g}, {fill_top:.4g}] m must lie within [0, {h}] and be "
+            f"fill region [{fill_bottom:.4g}, {fill_top:.4g}] m must lie within "
+            f"[0, {h + bin_height}] and be "
             "at least two particle diameters tall: raise `height` or lower `num_particles`"
         )
     # Widest box that stays inside the V at its lowest point, one radius (plus margin) from walls.
@@ -152,6 +169,7 @@ def make_hopper(
         "opening": opening,
         "depth": depth,
         "height": height,
+        "bin_height": bin_height,
         "num_particles": num_particles,
         "particle_radius": particle_radius,
         "t_open": t_open,
@@ -166,7 +184,7 @@ def make_hopper(
         particles=particles,
         materials=materials or Materials(),
         domain_lo=(-w - margin, -d - margin, -outflow_depth),
-        domain_hi=(w + margin, d + margin, h + margin),
+        domain_hi=(w + margin, d + margin, h + bin_height + margin),
         outflow_z=-outflow_depth,
         dem_dt=dem_dt,
         settle_time=settle_time,
