@@ -45,6 +45,12 @@ __all__ = ["closest_point_on_segments", "closest_point_on_triangles", "triangle_
 _DEGENERATE_EPS_FACTOR = 64.0
 
 
+#: Largest float32 coordinate (m) computed in float32: Eberly's determinant grows as the fourth
+#: power of the edge lengths and overflows float32 beyond about 1e9 m; larger inputs are
+#: computed in float64 (with ``validate``, which looks at every coordinate anyway).
+FLOAT32_SAFE_COORDINATE = 1e8
+
+
 # The kernels below work on structure-of-arrays vectors: a tuple of three contiguous ``[P]``
 # tensors. On the CPU this is 2-3x faster than reducing over a trailing dimension of size 3.
 Vec = tuple[torch.Tensor, torch.Tensor, torch.Tensor]
@@ -157,7 +163,9 @@ def closest_point_on_triangles(
 
     Works in float32 and float64 (the inputs' dtype) on any device, with no Python loop over
     pairs. Degenerate triangles (repeated or collinear vertices) give the closest point of the
-    segment or point they collapse to; the result is never NaN or Inf for finite input.
+    segment or point they collapse to; the result is never NaN or Inf for finite input (float32
+    coordinates beyond :data:`FLOAT32_SAFE_COORDINATE` are computed in float64 when
+    ``validate``).
 
     Args:
         points: ``[P, 3]`` query points (m).
@@ -172,6 +180,13 @@ def closest_point_on_triangles(
     """
     if validate:
         _check_pairs(points, triangles)
+        if points.dtype == torch.float32 and points.shape[0]:
+            largest = torch.maximum(points.abs().max(), triangles.abs().max())
+            if float(largest) > FLOAT32_SAFE_COORDINATE:  # |N|^2 ~ edge^4 would overflow
+                closest, sq_dist = closest_point_on_triangles(
+                    points.double(), triangles.double(), validate=False
+                )
+                return closest.float(), sq_dist.float()
     if points.shape[0] == 0:
         return points.clone(), points.new_zeros(0)
 

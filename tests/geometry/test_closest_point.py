@@ -243,3 +243,13 @@ def test_sliver_triangles_in_float32_stay_finite():
     assert torch.isfinite(closest).all() and torch.isfinite(sq).all()
     _, sq64 = closest_point_on_triangles(points, tris)
     torch.testing.assert_close(sq.double(), sq64, rtol=1e-5, atol=1e-7)
+
+
+def test_float32_triangles_with_huge_edges_give_finite_closest_points():
+    tri = torch.tensor([[[0.0, 0.0, 0.0], [1e10, 0.0, 0.0], [0.0, 1e10, 0.0]]])
+    point = torch.tensor([[2e9, 3e9, 5e9]])
+    closest, sq = closest_point_on_triangles(point, tri)
+    ref, ref_sq = closest_point_on_triangles(point.double(), tri.double())
+    assert closest.dtype == torch.float32 and bool(torch.isfinite(closest).all())
+    torch.testing.assert_close(closest.double(), ref, rtol=1e-6, atol=0.0)
+    torch.testing.assert_close(sq.double(), ref_sq, rtol=1e-6, atol=0.0)
