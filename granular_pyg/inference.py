@@ -24,7 +24,7 @@ from granular_pyg.errors import InputError, NonFiniteError, whole_number
 from granular_pyg.io import Trajectory
 from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.scenes import WallSet
-from granular_pyg.simulator import LearnedSimulator, WallGuard
+from granular_pyg.simulator import LearnedSimulator, ParticleProps, WallGuard
 
 __all__ = [
     "initial_frames",
@@ -192,7 +192,16 @@ def rollout_trajectory(
     check = stop_if_empty if stop_when_empty else None
     try:
         pred = sim.rollout(
-            seq, WallSet(truth.scene), t0, steps, outflow, progress, skin, guard, check
+            seq,
+            WallSet(truth.scene),
+            t0,
+            steps,
+            outflow,
+            progress,
+            skin,
+            guard,
+            check,
+            props=ParticleProps.of(truth),
         )
     except NonFiniteError as exc:
         done = exc.positions_so_far

@@ -11,6 +11,12 @@ feature mismatch is the classic silent bug of learned simulators). For one time 
   node, repeated), the six normal features of the variant (V1/V2/V3; zeros for particles),
   and the type one-hot (particle, wall) times ``type_scale``; a wall node's features are
   multiplied by its weight (1/k with ``wall_weight``);
+- optional particle-property columns after those (model options, off by default, so a model
+  without them is unchanged): ``radius_feature`` adds the particle's radius / ``R`` (0 on wall
+  nodes), ``material_features`` one column per named field of the Scene's
+  :class:`~granular_pyg.scenes.Materials`, broadcast to every node and scaled by the fixed map
+  :data:`MATERIAL_FEATURES` (no statistics), not weighted; they come in a
+  :class:`ParticleProps`;
 - edge features ``[4]`` for an edge ``j -> i``: ``(x_i - x_j) / R`` and ``|x_i - x_j| / R``.
 
 No absolute position enters, so predictions are translation invariant up to rounding.
@@ -27,7 +33,8 @@ Integration is semi-implicit Euler with the module's step ``dt`` (s):
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import torch
@@ -37,10 +44,10 @@ from torch_geometric.data import Batch, Data
 from granular_pyg.errors import InputError, NonFiniteError, check_coordinates_fit, check_tensor
 from granular_pyg.nn import EncodeProcessDecode, Processor
 from granular_pyg.progress import show_progress
-from granular_pyg.scenes import WallSet
+from granular_pyg.scenes import Materials, WallSet
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 
-__all__ = ["LearnedSimulator", "WallGuard"]
+__all__ = ["MATERIAL_FEATURES", "LearnedSimulator", "ParticleProps", "WallGuard"]
 
 
 @dataclass
@@ -60,6 +67,81 @@ class WallGuard:
 
     margin: torch.Tensor
     corrected: int = 0
+
+
+#: ``model.material_features``: each :class:`~granular_pyg.scenes.Materials` field the model
+#: may take as an input column, and the fixed map that scales it to order one (so no statistics
+#: are needed and a checkpoint's inputs never depend on its training data): friction,
+#: restitution and Poisson's ratio as they are, rolling friction x 10, Young's modulus as
+#: ``log10(E / 5e6 Pa)``, density / 2500 kg/m^3.
+MATERIAL_FEATURES: dict[str, Callable[[float], float]] = {
+    "friction": lambda v: v,
+    "rolling_friction": lambda v: 10.0 * v,
+    "restitution": lambda v: v,
+    "youngs_modulus": lambda v: math.log10(v / 5.0e6),
+    "poisson_ratio": lambda v: v,
+    "density": lambda v: v / 2500.0,
+}
+
+
+@dataclass(frozen=True)
+class ParticleProps:
+    """What a model may know of the particles besides their positions: the inputs of the
+    ``radius_feature`` and ``material_features`` options (see :class:`LearnedSimulator`).
+
+    Row ``i`` belongs to row ``i`` of the ``pos_seq`` it goes with; ``props[mask]`` keeps the
+    rows of a mask or index (the materials are the scene's, shared by all).
+
+    Attributes:
+        radius: ``[N]`` particle radii (m).
+        materials: the Scene's :class:`~granular_pyg.scenes.Materials` (or a mapping of its
+            fields), or None when unknown.
+    """
+
+    radius: torch.Tensor
+    materials: Materials | Mapping | None = None
+
+    def __post_init__(self) -> None:
+        radius = torch.as_tensor(self.radius)
+        if radius.dim() != 1 or not radius.is_floating_point():
+            raise InputError(
+                f"ParticleProps.radius: expected [N] float radii (m), got {radius.dtype} "
+                f"{list(radius.shape)}"
+            )
+        object.__setattr__(self, "radius", radius)
+
+    @classmethod
+    def of(cls, trajectory) -> ParticleProps:
+        """The radii and the Scene's materials of a :class:`~granular_pyg.io.Trajectory`."""
+        scene = trajectory.scene
+        return cls(
+            torch.from_numpy(trajectory.radii), scene.materials if scene is not None else None
+        )
+
+    def __len__(self) -> int:
+        return self.radius.shape[0]
+
+    def __getitem__(self, rows) -> ParticleProps:
+        """The rows ``rows`` (a bool mask, indices or a slice) of the particles."""
+        if not isinstance(rows, slice):
+            rows = torch.as_tensor(rows).to(self.radius.device)
+        return ParticleProps(self.radius[rows], self.materials)
+
+    def material(self, name: str) -> float:
+        """The value of the Materials field ``name`` (SI units)."""
+        if self.materials is None:
+            raise InputError(
+                f"model.material_features: {name!r} needs the scene's materials; this "
+                "ParticleProps has none (build it with ParticleProps.of(trajectory) or "
+                "ParticleProps(radii, scene.materials))"
+            )
+        m = self.materials
+        value = m.get(name) if isinstance(m, Mapping) else getattr(m, name, None)
+        if value is None or not math.isfinite(float(value)):
+            raise InputError(f"materials.{name}: expected a finite value, got {value!r}")
+        if name in ("youngs_modulus", "density") and not float(value) > 0:
+            raise InputError(f"materials.{name}: expected a positive value, got {value!r}")
+        return float(value)
 
 
 NUM_DIMS = 3
@@ -84,6 +166,14 @@ class LearnedSimulator(nn.Module):
         dt: time step of one learned step (s): the frame spacing times the time-step multiple.
         graph_backend: radius-graph backend (``"auto"``, ``"scipy"``, ``"torch_cluster"``).
         max_num_neighbors: neighbour cap of the radius graph; None sizes it to fit.
+        radius_feature: one more node input: a particle's radius / ``radius`` (0 on wall
+            nodes), so one model can serve several particle sizes.
+        material_features: more node inputs, one per named field of the Scene's Materials
+            (keys of :data:`MATERIAL_FEATURES`, scaled by it), the same on every node.
+
+    With ``radius_feature`` or ``material_features`` the graph needs a :class:`ParticleProps`
+    (``props`` of :meth:`build_graph`, :meth:`step`, :meth:`rollout`); without them a model
+    ignores it and is exactly the model without these options.
     """
 
     def __init__(
@@ -100,6 +190,8 @@ class LearnedSimulator(nn.Module):
         dt: float = 2.5e-3,
         graph_backend: str = "auto",
         max_num_neighbors: int | None = None,
+        radius_feature: bool = False,
+        material_features: Iterable[str] = (),
     ) -> None:
         super().__init__()
         if history < 1:
@@ -110,9 +202,24 @@ class LearnedSimulator(nn.Module):
         self.history = int(history)
         self.normals = normals
         self.type_scale = float(type_scale)
+        if not isinstance(radius_feature, bool):
+            raise InputError(
+                f"model.radius_feature: expected true or false, got {radius_feature!r}"
+            )
+        if isinstance(material_features, str):
+            material_features = [material_features]
+        names = tuple(str(n) for n in (material_features or ()))
+        unknown = [n for n in names if n not in MATERIAL_FEATURES]
+        if unknown or len(set(names)) != len(names):
+            raise InputError(
+                f"model.material_features: expected distinct names among "
+                f"{list(MATERIAL_FEATURES)}, got {list(names)}"
+            )
+        self.radius_feature, self.material_features = radius_feature, names
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
         self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight)
         node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES
+        node_in += int(self.radius_feature) + len(self.material_features)
         self.model = EncodeProcessDecode(
             node_in, NUM_EDGE_FEATURES, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
         )
@@ -168,6 +275,38 @@ class LearnedSimulator(nn.Module):
 
     # -- graph and features -----------------------------------------------------------------
 
+    @property
+    def uses_props(self) -> bool:
+        """Whether the features need a :class:`ParticleProps` (radius or material inputs)."""
+        return self.radius_feature or bool(self.material_features)
+
+    def _check_props(self, props: ParticleProps | None, num: int) -> None:
+        """Refuse a missing or mis-sized ``props`` when the options need it (no-op otherwise)."""
+        if not self.uses_props:
+            return
+        if props is None:
+            options = (["model.radius_feature=true"] if self.radius_feature else []) + (
+                [f"model.material_features={list(self.material_features)}"]
+                if self.material_features
+                else []
+            )
+            raise InputError(
+                f"props: this model was built with {' and '.join(options)}, so its features "
+                "need the particles' radii and the scene's materials; pass "
+                "props=ParticleProps.of(trajectory) (or ParticleProps(radii, scene.materials)) "
+                "with one row per row of pos_seq"
+            )
+        if not isinstance(props, ParticleProps):
+            raise InputError(f"props: expected a ParticleProps, got {type(props).__name__}")
+        if len(props) != num:
+            raise InputError(
+                f"props: {len(props)} radii for {num} particles; give one per row of pos_seq"
+            )
+        if self.radius_feature:
+            radius = props.radius
+            if not bool((torch.isfinite(radius) & (radius > 0)).all()):
+                raise InputError("props.radius: every radius must be finite and positive (m)")
+
     def build_graph(
         self,
         pos_seq: torch.Tensor,
@@ -175,6 +314,7 @@ class LearnedSimulator(nn.Module):
         time: float,
         neighbours: NeighbourList | None = None,
         ids: torch.Tensor | None = None,
+        props: ParticleProps | None = None,
     ) -> Data:
         """The input graph for one state.
 
@@ -186,15 +326,19 @@ class LearnedSimulator(nn.Module):
             neighbours: a :class:`NeighbourList` to reuse over a rollout (same edges as a
                 fresh radius graph); None: a fresh radius graph.
             ids: ``[N]`` increasing ids of the present particles, for ``neighbours``.
+            props: the ``N`` particles' :class:`ParticleProps` (their rows of it); needed with
+                ``radius_feature`` or ``material_features`` (InputError without), else ignored.
 
         The edges and the walls' closest points come from detached positions; the features
         (velocities, displacements) keep ``pos_seq``'s gradient, if it has one.
 
         Returns:
-            A Data with ``x [N + W, 3H + 8]``, ``edge_index [2, E]``, ``edge_attr [E, 4]``,
+            A Data with ``x [N + W, 3H + 8 + P]`` (``P`` property columns, 0 by default),
+            ``edge_index [2, E]``, ``edge_attr [E, 4]``,
             ``is_wall [N + W]`` and ``num_real = N``, ready to batch.
         """
         check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS))
+        self._check_props(props, pos_seq.shape[0])
         last = pos_seq[:, -1]
         data = Data(pos=last.detach(), walls=walls, time=float(time))
         if neighbours is None:
@@ -204,9 +348,11 @@ class LearnedSimulator(nn.Module):
         data = self.wall_nodes(data)
         if last.requires_grad:  # unrolled training: the features keep the positions' gradient
             data.pos = torch.cat([last.to(data.pos.dtype), data.pos[data.num_real :]])
-        return self._features(data, pos_seq)
+        return self._features(data, pos_seq, props)
 
-    def _features(self, data: Data, pos_seq: torch.Tensor) -> Data:
+    def _features(
+        self, data: Data, pos_seq: torch.Tensor, props: ParticleProps | None = None
+    ) -> Data:
         num_real = data.num_real
         centre = data.pos[:num_real].double().mean(dim=0)
         rel = (data.pos.double() - centre).float()  # float64 first: translation invariance
@@ -216,6 +362,8 @@ class LearnedSimulator(nn.Module):
         kind = torch.nn.functional.one_hot(data.is_wall.long(), NUM_TYPES).float()
         x = torch.cat([vel_feat, data.normal_feat.float(), kind * self.type_scale], dim=1)
         x = x * data.node_weight.float().unsqueeze(1)
+        if self.uses_props:  # after the wall weight: the values themselves on every node
+            x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)
         src, dst = data.edge_index
         disp = (rel[dst] - rel[src]) / self.radius
         edge_attr = torch.cat([disp, torch.linalg.vector_norm(disp, dim=1, keepdim=True)], 1)
@@ -226,6 +374,19 @@ class LearnedSimulator(nn.Module):
             is_wall=data.is_wall,
             num_real=num_real,
         )
+
+    def _property_columns(
+        self, props: ParticleProps, num_wall: int, like: torch.Tensor
+    ) -> torch.Tensor:
+        """``[N + W, P]``: radius / R (wall nodes 0), then each material input."""
+        num = len(props) + num_wall
+        cols = []
+        if self.radius_feature:
+            radius = props.radius.to(like.device, torch.float64) / self.radius
+            cols.append(torch.cat([radius.float(), like.new_zeros(num_wall)]))
+        for name in self.material_features:
+            cols.append(like.new_full((num,), MATERIAL_FEATURES[name](props.material(name))))
+        return torch.stack(cols, dim=1)
 
     # -- prediction and integration -----------------------------------------------------------
 
@@ -241,9 +402,11 @@ class LearnedSimulator(nn.Module):
         time: float,
         neighbours: NeighbourList | None = None,
         ids: torch.Tensor | None = None,
+        props: ParticleProps | None = None,
     ) -> torch.Tensor:
-        """Physical acceleration ``[N, 3]`` (m/s^2, float32) of the present particles."""
-        normalised = self(self.build_graph(pos_seq, walls, time, neighbours, ids))
+        """Physical acceleration ``[N, 3]`` (m/s^2, float32) of the present particles (the
+        arguments are :meth:`build_graph`'s)."""
+        normalised = self(self.build_graph(pos_seq, walls, time, neighbours, ids, props))
         return normalised * self.acc_std + self.acc_mean
 
     @torch.no_grad()
@@ -255,6 +418,7 @@ class LearnedSimulator(nn.Module):
         outflow_z: float | None = None,
         neighbours: NeighbourList | None = None,
         guard: WallGuard | None = None,
+        props: ParticleProps | None = None,
     ) -> torch.Tensor:
         """Advance one learned step (``dt``).
 
@@ -269,11 +433,14 @@ class LearnedSimulator(nn.Module):
             outflow_z: the scene's outflow height (m), or None.
             neighbours: a :class:`NeighbourList` kept over the steps of a rollout, or None.
             guard: a :class:`WallGuard` over the ``N`` particles, or None.
+            props: :class:`ParticleProps` of the ``N`` particles (all rows, sliced here like
+                ``pos_seq``); needed by a model with radius or material inputs.
 
         Returns:
             ``[N, 3]`` next positions in the dtype of ``pos_seq``.
         """
         check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS), finite=False)
+        self._check_props(props, pos_seq.shape[0])
         present = torch.isfinite(pos_seq).all(dim=2).all(dim=1)
         out = torch.full_like(pos_seq[:, -1], float("nan"))
         if not bool(present.any()):
@@ -295,7 +462,8 @@ class LearnedSimulator(nn.Module):
         seq = pos_seq[present]
         check_coordinates_fit("pos_seq", seq, self.radius_graph.radius)
         ids = present.nonzero().squeeze(1) if neighbours is not None else None
-        acc = self.predict_acceleration(seq, walls, time, neighbours, ids).double()
+        sub = props[present] if props is not None else None
+        acc = self.predict_acceleration(seq, walls, time, neighbours, ids, props=sub).double()
         finite = torch.isfinite(acc).all(dim=1)
         if not bool(finite.all()):
             bad = present.nonzero()[:, 0][~finite].tolist()
@@ -337,6 +505,7 @@ class LearnedSimulator(nn.Module):
         guard: WallGuard | None = None,
         on_step: Callable[[int, float, torch.Tensor, torch.Tensor], bool | None] | None = None,
         keep: bool = True,
+        props: ParticleProps | None = None,
     ) -> torch.Tensor:
         """Autoregressive rollout of ``steps`` learned steps from ``pos_seq``: the one loop that
         ``rollout``, ``evaluate`` and ``stress`` run.
@@ -356,6 +525,8 @@ class LearnedSimulator(nn.Module):
                 before the outflow removes anyone. It may set rows of ``nxt`` to NaN (particles
                 that left) and returns True to end the rollout after this step.
             keep: return the predictions; False returns an empty ``[0, N, 3]`` (long checks).
+            props: :class:`ParticleProps` of the ``N`` particles, for a model with radius or
+                material inputs (each step keeps the rows of the particles still present).
 
         Returns:
             ``[S, N, 3]`` predicted positions, NaN for particles that have left; ``S = steps``
@@ -371,7 +542,7 @@ class LearnedSimulator(nn.Module):
         for s in bar:
             t = time + s * dt
             try:
-                nxt = self.step(seq, walls, t, None, neighbours, guard)
+                nxt = self.step(seq, walls, t, None, neighbours, guard, props)
                 stop = bool(on_step(s, t, seq, nxt)) if on_step is not None else False
             except NonFiniteError as exc:
                 exc.step = s

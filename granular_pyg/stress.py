@@ -47,7 +47,7 @@ from granular_pyg.io import Trajectory, atomic_write, command_line, markdown_tab
 from granular_pyg.metrics import crushed_particles, leaked_mask
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
-from granular_pyg.simulator import WallGuard
+from granular_pyg.simulator import ParticleProps, WallGuard
 
 __all__ = ["kinetic_energy", "stress_case"]
 
@@ -133,6 +133,7 @@ def stress_case(
     scene, walls = truth.scene, WallSet(truth.scene)
     start = torch.from_numpy(truth.positions[initial]).permute(1, 0, 2).contiguous()
     radii = torch.from_numpy(truth.radii).double()
+    props = ParticleProps.of(truth)  # radius and material inputs of models that take them
     dt, t0 = float(sim.dt), float(truth.times[initial[-1]])
     mass, tol = _masses(truth), float(truth.radii.min())
     ke_truth = _truth_max_kinetic_energy(truth)
@@ -168,7 +169,7 @@ def stress_case(
     def check(s: int, time: float, seq: torch.Tensor, new: torch.Tensor) -> bool:
         nxt = {"float32": new}
         if compare_float64:
-            nxt["float64"] = sim.step(twin["seq"], walls, time, guard=twin["guard"])
+            nxt["float64"] = sim.step(twin["seq"], walls, time, guard=twin["guard"], props=props)
         before = torch.isfinite(seq[:, -1]).all(1)
         out = new[:, 2] < outflow if outflow is not None else torch.zeros_like(before)
         # As in LIGGGHTS, a particle that leaves the simulation box is gone; other than
@@ -237,7 +238,17 @@ def stress_case(
     with torch.inference_mode():
         try:
             sim.rollout(
-                start.float(), walls, t0, steps, outflow, progress, None, guard, check, keep=False
+                start.float(),
+                walls,
+                t0,
+                steps,
+                outflow,
+                progress,
+                None,
+                guard,
+                check,
+                keep=False,
+                props=props,
             )
         except NonFiniteError as exc:
             fail(exc.step, f"NaN/Inf prediction for particle rows {exc.particle_ids[:10]}")

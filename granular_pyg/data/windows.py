@@ -6,7 +6,9 @@ A window at frame ``t`` with time-step multiple ``k`` holds the positions at fra
 through the outflow are masked out); windows without any such particle are skipped. With
 ``keep_leaving``, a particle present in the ``H + 1`` input frames that leaves before the target
 frame takes part too, with a NaN target (left out of the loss), as a rollout keeps it in the
-graph until it crosses the outflow.
+graph until it crosses the outflow. A window's ``props`` are its particles' rows of the
+trajectory's radii, with the Scene's materials (inputs of models with ``model.radius_feature`` or
+``model.material_features``).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.io import Trajectory, read_trajectory
 from granular_pyg.samples import SAMPLES_DIR
 from granular_pyg.scenes import WallSet
+from granular_pyg.simulator import ParticleProps
 
 __all__ = ["Window", "WindowDataset", "load_split"]
 
@@ -39,6 +42,7 @@ class Window:
         outflow_z: the scene's outflow height (m) or None.
         index: ``(trajectory, frame)`` it came from.
         epoch: training epoch it was drawn for (seeds its noise).
+        props: the ``N`` particles' radii and the Scene's materials (:class:`ParticleProps`).
     """
 
     pos_seq: torch.Tensor
@@ -48,6 +52,7 @@ class Window:
     outflow_z: float | None
     index: tuple[int, int]
     epoch: int = 0
+    props: ParticleProps | None = None
 
 
 def load_split(root: str | Path | None, sample: str | None, split: str) -> list[Path]:
@@ -103,6 +108,7 @@ class WindowDataset(Dataset):
             if traj.scene is None:
                 raise InputError("trajectories: a training trajectory needs its Scene (walls)")
         self.walls = [WallSet(traj.scene) for traj in self.trajs]
+        self.props = [ParticleProps.of(traj) for traj in self.trajs]
         self.history, self.step, self.extra_steps = (
             int(history),
             int(frames_per_step),
@@ -152,6 +158,7 @@ class WindowDataset(Dataset):
             outflow_z=traj.scene.outflow_z,
             index=(i, t),
             epoch=int(epoch),
+            props=self.props[i][torch.from_numpy(keep)],
         )
         if self.extra_steps:
             sample.future = window[:, h + 1 :].contiguous()  # type: ignore[attr-defined]

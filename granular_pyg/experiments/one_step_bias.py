@@ -79,7 +79,8 @@ def one_step_bias(
             window = windows[item]
             seq = window.pos_seq
             with torch.no_grad():
-                pred = sim.predict_acceleration(seq, window.walls, window.time)[:, 2]
+                pred = sim.predict_acceleration(seq, window.walls, window.time, props=window.props)
+                pred = pred[:, 2]
                 true = sim.target_acceleration(seq, window.target_pos).double()
             true = (true * sim.acc_std.double() + sim.acc_mean.double())[:, 2]
             z = seq[:, -1, 2].double().numpy() - outlet_z

@@ -110,7 +110,7 @@ class _Collate:
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
             with torch.no_grad():
-                graph = self.sim.build_graph(pos_seq, w.walls, w.time)
+                graph = self.sim.build_graph(pos_seq, w.walls, w.time, props=w.props)
                 graph.y = self.sim.target_acceleration(pos_seq, target)
             graphs.append(graph)
         batch = Batch.from_data_list(graphs)

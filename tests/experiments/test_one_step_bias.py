@@ -39,7 +39,7 @@ def _sim(hopper, offset: float | None):
     t0, positions = float(hopper.times[0]), torch.from_numpy(hopper.positions).double()
     ids = {}
 
-    def true_acceleration(pos_seq, walls, time, neighbours=None, ids_=None):
+    def true_acceleration(pos_seq, walls, time, neighbours=None, ids_=None, props=None):
         frame = round((time - t0) / hopper.frame_dt)
         rows = ids[frame]
         acc = (positions[frame + STEP, rows] - 2 * pos_seq[:, -1] + pos_seq[:, -2]) / dt**2

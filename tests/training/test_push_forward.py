@@ -68,7 +68,7 @@ def _perfect_model(hopper):
     sim.dt.fill_(dt)
     positions = torch.from_numpy(hopper.positions).double()
 
-    def true_acceleration(pos_seq, walls, time, neighbours=None, ids=None):
+    def true_acceleration(pos_seq, walls, time, neighbours=None, ids=None, props=None):
         frame = round((time - float(hopper.times[0])) / hopper.frame_dt)
         last, prev = pos_seq[:, -1].double(), pos_seq[:, -2].double()
         here = np.flatnonzero(hopper.present[frame])  # the particles, matched by position

@@ -35,18 +35,19 @@ class PushForward(Objective):
         (NaN for particles that the ground truth has lost by then) rebuilt."""
         graphs, dt = [], float(sim.dt)
         for w in batch.windows:
-            seq = w.pos_seq
+            seq, props = w.pos_seq, w.props
             known = torch.cat([w.target_pos[:, None], w.future], dim=1)  # t + k, t + 2k, ...
             with torch.no_grad():
                 for u in range(unroll):
-                    nxt = sim.step(seq, w.walls, w.time + u * dt, w.outflow_z)
+                    nxt = sim.step(seq, w.walls, w.time + u * dt, w.outflow_z, props=props)
                     seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
             held = torch.isfinite(seq).all(dim=2).all(dim=1)  # not yet left in the model's run
             if bool(held.any()):
                 seq, target, time = seq[held], known[held, unroll], w.time + unroll * dt
+                props = props[held] if props is not None else None
             else:  # every particle left: the window's own step instead
                 seq, target, time = w.pos_seq, w.target_pos, w.time
-            graph = sim.build_graph(seq, w.walls, time)
+            graph = sim.build_graph(seq, w.walls, time, props=props)
             graph.y = sim.target_acceleration(seq, target)
             graphs.append(graph)
         return Batch.from_data_list(graphs).to(batch.x.device)

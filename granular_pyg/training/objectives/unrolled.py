@@ -47,8 +47,9 @@ class Unrolled(Objective):
                 )
             seq = w.pos_seq.to(device, torch.float64)
             known = torch.cat([w.target_pos[:, None], future], 1).to(device, torch.float64)
+            props = w.props
             for u in range(steps):
-                acc = sim.predict_acceleration(seq, w.walls, w.time + u * dt).double()
+                acc = sim.predict_acceleration(seq, w.walls, w.time + u * dt, props=props).double()
                 pred = (acc - acc_mean) / acc_std
                 losses.append(masked_mse(pred, sim.target_acceleration(seq, known[:, u]).double()))
                 if u + 1 == steps:
@@ -60,4 +61,5 @@ class Unrolled(Objective):
                     if not bool(held.any()):
                         break  # every particle left through the outflow
                     seq, known = seq[held], known[held]
+                    props = props[held] if props is not None else None
         return torch.stack(losses).mean().float()
