@@ -27,7 +27,13 @@ from granular_pyg.inference import (
     rollout_trajectory,
     warn_outside_training,
 )
-from granular_pyg.io import Trajectory, export_paraview, read_trajectory, write_trajectory
+from granular_pyg.io import (
+    Trajectory,
+    check_output,
+    export_paraview,
+    read_trajectory,
+    write_trajectory,
+)
 
 __all__ = ["evaluate", "selected_files"]
 
@@ -38,6 +44,7 @@ CONSOLE = ("emd_mean", "discharge_rate_rel_error", "angle_of_repose_error_deg", 
 def evaluate(cfg: DictConfig) -> Path:
     """Evaluate as ``cfg`` says; returns the path of the Markdown report."""
     torch.set_num_threads(cfg.threads)
+    check_output(Path(cfg.out) / "report.md", overwrite=cfg.get("overwrite", False))
     sim, config = load_simulator(cfg.ckpt)
     data = config.get("data", {})
     root = cfg.root if cfg.root or cfg.sample else data.get("root")

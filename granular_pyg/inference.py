@@ -111,11 +111,12 @@ def initial_frames(
         ground-truth frames that are the initial states, every ``k``-th from ``start_frame``.
 
     Raises:
-        InputError: no Scene (walls), a frame spacing the model's step is not a multiple of,
-            or too few frames.
+        InputError: no Scene (walls), uneven frame spacing, a frame spacing the model's step
+            is not a multiple of, or too few frames.
     """
     if truth.scene is None:
         raise InputError("truth: a rollout needs the trajectory's Scene (walls); it has none")
+    truth.check_even_spacing()
     k = time_step_multiple(sim, truth.frame_dt)
     frames = np.arange(start_frame, start_frame + (sim.history + 1) * k, k)
     if start_frame < 0 or frames[-1] >= truth.num_frames:

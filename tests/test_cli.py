@@ -22,6 +22,10 @@ CASES = [
     ("granular_pyg.experiments.one_step_bias", ["ckpt=missing.ckpt"], "missing.ckpt"),
     ("granular_pyg.dem.convert", ["missing.dump", "--dem-dt", "2e-5", "--out", "x.h5"], "missing"),
     ("granular_pyg.pretrained.export", ["missing.ckpt", "hopper"], "missing.ckpt"),
+    ("granular_pyg.train", ["data.batch_size=0"], "data.batch_size"),
+    ("granular_pyg.evaluate", ["ckpt=pretrained:hopper", "out=.", "steps=2.5"], "steps"),
+    ("granular_pyg.generate", ["n=3", "out=x", "splits={train:0.0,valid:0.5,test:0.5}"], "splits"),
+    ("granular_pyg.data.combine", ["empty_folder"], "empty_folder"),
 ]
 
 
@@ -65,3 +69,29 @@ def test_debug_mode_raises_instead_of_exiting(monkeypatch, capsys):
         reports_errors(bad)()
     assert exit_info.value.code == EXIT_INPUT_ERROR
     assert capsys.readouterr().err == "error: x: bad; fix it\n"
+
+
+def test_a_truncated_checkpoint_to_resume_is_one_error_line(tmp_path):
+    from granular_pyg.pretrained import resolve_checkpoint
+
+    data = resolve_checkpoint("pretrained:hopper").read_bytes()
+    (tmp_path / "cut.ckpt").write_bytes(data[: len(data) // 2])
+    done = subprocess.run(
+        [sys.executable, "-m", "granular_pyg.train", "ckpt_path=cut.ckpt"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == EXIT_INPUT_ERROR and "Traceback" not in done.stderr
+    assert "cut.ckpt is not a readable checkpoint" in done.stderr
+
+
+def test_removing_a_stress_case_leaves_the_others_resolvable():
+    from omegaconf import OmegaConf
+
+    from granular_pyg.config import compose
+
+    for case in ("drum", "hopper_resting", "drum_precision"):
+        cfg = compose("stress", [f"~cases.{case}"])
+        resolved = OmegaConf.to_container(cfg.cases, resolve=True)
+        assert case not in resolved and all(
+            c["ckpt"].startswith("pretrained:") for c in resolved.values()
+        )

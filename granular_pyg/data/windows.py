@@ -107,6 +107,7 @@ class WindowDataset(Dataset):
         for traj in self.trajs:
             if traj.scene is None:
                 raise InputError("trajectories: a training trajectory needs its Scene (walls)")
+            traj.check_even_spacing()
         self.walls = [WallSet(traj.scene) for traj in self.trajs]
         self.props = [ParticleProps.of(traj) for traj in self.trajs]
         self.history, self.step, self.extra_steps = (

@@ -128,6 +128,27 @@ class Trajectory:
         if not isinstance(self.metadata, dict):
             raise InputError(f"metadata: expected a dict, got {type(self.metadata).__name__}")
 
+    def check_even_spacing(self, tolerance: float = 1e-6) -> None:
+        """Refuse frames that are not evenly spaced (a dropped or duplicated frame): learned
+        steps and initial velocities assume one spacing.
+
+        Raises:
+            InputError: naming the first uneven frame, its time and the spacing.
+        """
+        if self.num_frames < 3:
+            return
+        gaps = np.diff(self.times)
+        spacing = float(np.median(gaps))
+        bad = np.flatnonzero(np.abs(gaps - spacing) > tolerance * spacing)
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(
+                f"times: frames are not evenly spaced: frame {i + 1} (t = {self.times[i + 1]:.6g} "
+                f"s) follows frame {i} after {gaps[i]:.6g} s, not the {spacing:.6g} s of the "
+                f"others ({bad.size} uneven gap(s)); a frame was dropped or duplicated: convert "
+                "the run again (dem.convert refuses gaps) or cut the trajectory there"
+            )
+
     @property
     def num_frames(self) -> int:
         """Number of recorded frames ``T``."""

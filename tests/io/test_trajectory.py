@@ -293,3 +293,29 @@ def test_written_file_has_the_usual_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (tmp_path / "t.h5").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_uneven_frames_are_refused_by_rollouts_and_training_windows():
+    import dataclasses
+
+    from granular_pyg.data import WindowDataset
+    from granular_pyg.inference import load_simulator, rollout_trajectory
+    from granular_pyg.io import read_trajectory
+    from granular_pyg.samples import sample_files
+
+    truth = read_trajectory(sample_files("hopper", "test")[0])
+    truth.check_even_spacing()  # the bundled sample is even
+    keep = np.delete(np.arange(truth.num_frames), 30)  # frame 30 dropped
+    gap = dataclasses.replace(
+        truth,
+        positions=truth.positions[keep],
+        velocities=truth.velocities[keep],
+        times=truth.times[keep],
+    )
+    with pytest.raises(InputError, match=r"frame 30 \(t = 0.0775 s\) follows frame 29 after 0.005"):
+        gap.check_even_spacing()
+    sim, _ = load_simulator("pretrained:hopper")
+    with pytest.raises(InputError, match="not evenly spaced"):
+        rollout_trajectory(sim, gap, steps=1, progress=False)
+    with pytest.raises(InputError, match="not evenly spaced"):
+        WindowDataset([gap], history=5, frames_per_step=1)
