@@ -38,8 +38,8 @@ def test_the_readme_is_short_and_cites_only_files_in_the_repository():
 @pytest.mark.slow
 def test_the_quickstart_runs_as_written(tmp_path):
     """Four real LIGGGHTS hopper runs (200 particles, 0.1 s) laid out as a user's folders
-    ``run0..run3/{dumps/, *.stl, in.liggghts}``; then each quickstart line, with ``<time>`` replaced by the
-    training run's folder."""
+    ``run0..run3/{dumps/, *.stl, in.liggghts}``; then each quickstart line, with ``<time>``
+    replaced by the training run's folder."""
     made = tmp_path / "made"
     cfg = compose(
         "generate",
