@@ -3,8 +3,9 @@
 ``@command("train")`` turns ``main(cfg)`` into a Hydra app over ``conf/train.yaml`` (the folder
 that :data:`granular_pyg.config.CONF_DIR` names, so a wheel runs without a checkout) and gives
 every command the same error style: an expected failure (bad input, a missing or unwritable
-file, a full disk) prints one ``error:`` line that names the thing and the fix, and exits with
-status 2. A traceback is printed only with ``GRANULAR_PYG_DEBUG=1`` or ``HYDRA_FULL_ERROR=1``.
+file, a full disk, a model that predicted NaN) prints one ``error:`` message that names the
+thing and the fix, and exits with status 2. A traceback is printed only with
+``GRANULAR_PYG_DEBUG=1`` or ``HYDRA_FULL_ERROR=1``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from collections.abc import Callable
 import hydra
 
 from granular_pyg.config import CONF_DIR
-from granular_pyg.errors import InputError
+from granular_pyg.errors import InputError, NonFiniteError
 
 __all__ = ["EXIT_INPUT_ERROR", "command", "debugging", "reports_errors"]
 
@@ -36,7 +37,7 @@ def _expected(exc: BaseException) -> BaseException | None:
     raised), or None for a bug."""
     seen = set()
     while exc is not None and id(exc) not in seen:
-        if isinstance(exc, (InputError, OSError)):
+        if isinstance(exc, (InputError, NonFiniteError, OSError)):
             return exc
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
@@ -44,7 +45,7 @@ def _expected(exc: BaseException) -> BaseException | None:
 
 
 def _message(exc: BaseException) -> str:
-    if isinstance(exc, InputError):
+    if isinstance(exc, (InputError, NonFiniteError)):
         return str(exc)
     # OSError: a missing file, no permission, a full disk (strerror names the cause)
     where = f": {exc.filename}" if getattr(exc, "filename", None) else ""
