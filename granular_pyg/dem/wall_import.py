@@ -30,7 +30,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from granular_pyg.dem.import_checks import check_wall_coordinates
 from granular_pyg.dem.liggghts_input import MeshFix, RunScript
@@ -44,6 +43,7 @@ from granular_pyg.dem.mesh_dump import (
 from granular_pyg.dem.rigid_fit import IDENTITY, Pose, dump_tolerance, pose_deviation
 from granular_pyg.dem.walls_config import WallEntry, WallsConfig, unit_scale
 from granular_pyg.errors import InputError
+from granular_pyg.scenes.mesh_scene import read_stl
 from granular_pyg.scenes.scene import Wall, WallMotion
 
 __all__ = ["ImportedWall", "import_walls", "load_stl_wall"]
@@ -149,19 +149,8 @@ def load_stl_wall(path: str | os.PathLike, name: str) -> Wall:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such STL file; check the --stl paths")
-    try:
-        mesh = trimesh.load(path, force="mesh", process=False)
-    except Exception as err:  # trimesh raises many types for bad files
-        raise InputError(
-            f"{path}: cannot read this STL file ({err}); export it again as ASCII or binary STL"
-        ) from err
-    faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), np.int64)
-    if faces.ndim != 2 or len(faces) == 0:
-        raise InputError(f"{path}: the STL file holds no triangles; export the wall mesh again")
-    vertices, inverse = np.unique(
-        np.asarray(mesh.vertices, np.float64), axis=0, return_inverse=True
-    )
-    return Wall(name=name, vertices=vertices, faces=inverse.reshape(-1)[faces])
+    vertices, faces = read_stl(path)
+    return Wall(name=name, vertices=vertices, faces=faces)
 
 
 def import_walls(

@@ -94,20 +94,33 @@ def load_stl(path: str | os.PathLike, units: str = "m") -> tuple[np.ndarray, np.
     """
     if units not in UNITS:
         raise InputError(f"units: expected one of {sorted(UNITS)} for {path}, got {units!r}")
-    found = resolve_mesh_path(path)
+    vertices, faces = read_stl(resolve_mesh_path(path))
+    return vertices * UNITS[units], faces
+
+
+def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles of the STL file ``path`` (ASCII or binary) in its own units, with exactly
+    coincident vertices merged and the triangles kept in file order.
+
+    Returns:
+        ``(vertices [V, 3] float64, faces [F, 3] int64)``.
+
+    Raises:
+        InputError: an unreadable file or one without triangles.
+    """
     try:
-        mesh = trimesh.load(found, file_type="stl", force="mesh", process=False)
+        mesh = trimesh.load(path, file_type="stl", force="mesh", process=False)
     except Exception as err:  # trimesh raises many types for bad files
         raise InputError(
-            f"{found}: cannot read this STL file ({err}); export it again as ASCII or binary STL"
+            f"{path}: cannot read this STL file ({err}); export it again as ASCII or binary STL"
         ) from err
     faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), np.int64)
     if faces.ndim != 2 or len(faces) == 0:
-        raise InputError(f"{found}: the STL file holds no triangles; export the mesh again")
+        raise InputError(f"{path}: the STL file holds no triangles; export the mesh again")
     vertices, inverse = np.unique(
         np.asarray(mesh.vertices, np.float64), axis=0, return_inverse=True
     )
-    return vertices * UNITS[units], inverse.reshape(-1)[faces]
+    return vertices, inverse.reshape(-1)[faces]
 
 
 def _vector(name: str, value: Any, size: int) -> np.ndarray:
