@@ -32,6 +32,7 @@ from granular_pyg.dem.rigid_fit import (
     fit_pose,
     pose_deviation,
 )
+from granular_pyg.dem.stitch import dump_files
 from granular_pyg.errors import InputError
 from granular_pyg.scenes.scene import WallMotion
 
@@ -121,23 +122,7 @@ def read_mesh_dumps(paths: Sequence[str | os.PathLike], pattern: str = "*") -> l
         FileNotFoundError: a path does not exist.
         InputError: a file name without its TIMESTEP, an unreadable file, or no file at all.
     """
-    files: list[Path] = []
-    for given in paths:
-        path = Path(given)
-        if path.is_dir():
-            found = sorted(
-                p for p in path.glob(pattern) if p.is_file() and p.suffix.lower() in MESH_SUFFIXES
-            )
-            if not found:
-                raise InputError(
-                    f"{path}: no .stl or .vtk files match {pattern!r} in this folder; check "
-                    "--mesh-dumps and --mesh-pattern"
-                )
-            files += found
-        elif path.is_file():
-            files.append(path)
-        else:
-            raise FileNotFoundError(f"{path}: no such mesh dump file or folder; check the path")
+    files = dump_files(paths, pattern, MESH_SUFFIXES, "mesh dump", "--mesh-pattern")
     frames = []
     for path in files:
         match = _STEP.search(path.stem)

@@ -27,31 +27,44 @@ from granular_pyg.errors import InputError
 __all__ = ["dump_files", "frame_spacing", "read_dumps"]
 
 
-def dump_files(paths: Sequence[str | os.PathLike], pattern: str = "*") -> list[Path]:
-    """The dump files named by ``paths``: files as given, folders expanded to the regular files
-    whose names match ``pattern`` (sorted by name).
+def dump_files(
+    paths: Sequence[str | os.PathLike],
+    pattern: str = "*",
+    suffixes: Sequence[str] | None = None,
+    what: str = "dump",
+    option: str = "--pattern",
+) -> list[Path]:
+    """The files named by ``paths``: files as given, folders expanded to the regular files
+    whose names match ``pattern`` (and end in one of ``suffixes``, case-insensitive, when
+    given), sorted by name. ``what`` and ``option`` name the files and the pattern's option in
+    the messages.
 
     Raises:
         FileNotFoundError: a path does not exist.
         InputError: a folder holds no matching file, or no path was given.
     """
     if not paths:
-        raise InputError("dumps: no dump file or folder given; pass at least one")
+        raise InputError(f"{what}s: no {what} file or folder given; pass at least one")
+    described = "files" if suffixes is None else " or ".join(suffixes) + " files"
     files: list[Path] = []
     for given in paths:
         path = Path(given)
         if path.is_dir():
-            found = sorted(p for p in path.glob(pattern) if p.is_file())
+            found = sorted(
+                p
+                for p in path.glob(pattern)
+                if p.is_file() and (suffixes is None or p.suffix.lower() in suffixes)
+            )
             if not found:
                 raise InputError(
-                    f"{path}: no files match {pattern!r} in this folder; check the folder or "
-                    "--pattern"
+                    f"{path}: no {described} match {pattern!r} in this folder; check the "
+                    f"folder or {option}"
                 )
             files += found
         elif path.is_file():
             files.append(path)
         else:
-            raise FileNotFoundError(f"{path}: no such dump file or folder; check the path")
+            raise FileNotFoundError(f"{path}: no such {what} file or folder; check the path")
     return files
 
 
