@@ -22,6 +22,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.progress import show_progress
 from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
 from granular_pyg.training.epoch_log import EpochLog
+from granular_pyg.training.fine_tune import load_initial_weights, merge_cards, with_initial_model
 from granular_pyg.training.model_card import card_of_trajectories
 from granular_pyg.training.saved_config import migrate_config
 
@@ -96,6 +97,10 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
         out_dir: run folder; the Hydra run folder when called from the command line.
     """
     out = Path(out_dir or HydraConfig.get().runtime.output_dir)
+    initial = None
+    if cfg.get("init"):
+        cfg, initial = with_initial_model(cfg)
+        print(f"fine-tuning {cfg.init}: its model, weights and normalisation; a new optimiser")
     if cfg.ckpt_path:
         _check_resume(cfg.ckpt_path, cfg)
     L.seed_everything(cfg.seed, workers=True)
@@ -104,12 +109,16 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     objective = instantiate(cfg.objective)
     datamodule = instantiate(cfg.data)
     datamodule.attach(sim, objective)
+    card = _card(cfg, sim, datamodule)
+    if initial is not None:
+        load_initial_weights(sim, initial)
+        card = merge_cards(initial.get("model_card") or {}, card, str(cfg.init))
     module = SimulatorModule(sim, objective, **cfg.optim, seed=cfg.seed)
     logger = instantiate(cfg.logger, save_dir=str(out)) if cfg.logger else False
     callbacks = [
         L.pytorch.callbacks.ModelCheckpoint(dirpath=out / "checkpoints", **cfg.checkpoint),
         RolloutValidation(**cfg.rollout_validation),
-        _SaveConfig(cfg, _card(cfg, sim, datamodule)),
+        _SaveConfig(cfg, card),
     ]
     if logger:
         callbacks.append(L.pytorch.callbacks.LearningRateMonitor(logging_interval="step"))

@@ -1,0 +1,123 @@
+"""Fine-tuning: train on new data starting from a trained model (``init=pretrained:<name>`` or a
+checkpoint), keeping its architecture, weights and normalisation; the optimiser starts afresh.
+
+:func:`with_initial_model` rewrites the composed training config before anything is built: the
+model section becomes the checkpoint's, the data's history and noise settings follow the
+checkpoint's training run, and ``data.frames_per_step`` is set so that the learned step stays
+the model's (``k = dt / frame spacing`` of the new data, a whole number).
+:func:`load_initial_weights` then puts the weights and statistics back after the data module
+has computed its own.
+"""
+
+from __future__ import annotations
+
+import torch
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from granular_pyg.data.windows import load_split
+from granular_pyg.errors import InputError
+from granular_pyg.io import read_trajectory
+from granular_pyg.pretrained import resolve_checkpoint
+from granular_pyg.simulator import LearnedSimulator
+from granular_pyg.training.saved_config import migrate_config
+
+__all__ = ["INHERITED_DATA_KEYS", "load_initial_weights", "merge_cards", "with_initial_model"]
+
+#: Data settings a fine-tuning run takes over from the initial model's training run.
+INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
+
+
+def _read(init: str) -> dict:
+    path = resolve_checkpoint(init)
+    if not path.is_file():
+        raise InputError(f"init: no checkpoint at {path}; pass pretrained:<name> or a .ckpt file")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises several types for corrupt files
+        raise InputError(f"init: {path} is not a readable checkpoint ({exc})") from exc
+    if not isinstance(ckpt, dict) or "config" not in ckpt or "state_dict" not in ckpt:
+        raise InputError(f"init: {path} is not a granular_pyg checkpoint (no config or weights)")
+    ckpt["config"] = migrate_config(ckpt["config"])
+    return ckpt
+
+
+def _frame_spacing(cfg: DictConfig) -> float:
+    """Frame spacing (s) of the first training trajectory of ``cfg.data``."""
+    listed = (cfg.data.get("trajectories") or {}).get("train")
+    files = list(listed) if listed else load_split(cfg.data.root, cfg.data.sample, "train")
+    if not files:
+        raise InputError("data: the training split is empty; fine-tuning needs a trajectory")
+    return read_trajectory(files[0]).frame_dt
+
+
+def with_initial_model(cfg: DictConfig) -> tuple[DictConfig, dict]:
+    """``cfg`` with the model of checkpoint ``cfg.init``, and the checkpoint.
+
+    Returns:
+        ``(config, checkpoint)``: a copy of ``cfg`` whose ``model`` section is the
+        checkpoint's (with its learned step ``dt``, s), whose data history and noise follow the
+        checkpoint's run, and whose ``data.frames_per_step`` is ``dt`` over the new data's frame
+        spacing; the loaded checkpoint dict.
+
+    Raises:
+        InputError: a missing or unreadable checkpoint, or new data whose frame spacing the
+            model's step is not a whole multiple of.
+    """
+    ckpt = _read(str(cfg.init))
+    saved = ckpt["config"]
+    cfg = OmegaConf.create(OmegaConf.to_container(cfg, resolve=False))
+    dt = float(saved["model"].get("dt") or 0.0)
+    if dt <= 0:
+        raise InputError(f"init: {cfg.init} does not record its learned step (model.dt)")
+    with open_dict(cfg):
+        cfg.model = OmegaConf.create(saved["model"])
+        for key in INHERITED_DATA_KEYS:
+            if key in saved.get("data", {}):
+                cfg.data[key] = saved["data"][key]
+        frame_dt = _frame_spacing(cfg)
+        k = round(dt / frame_dt)
+        if k < 1 or abs(dt / frame_dt - k) > 1e-6 * max(1.0, dt / frame_dt):
+            raise InputError(
+                f"init: the model's learned step {dt:g} s is not a whole multiple of the new "
+                f"data's frame spacing {frame_dt:g} s; record frames every {dt:g} s / k"
+            )
+        cfg.data.frames_per_step = k
+    return cfg, ckpt
+
+
+def load_initial_weights(sim: LearnedSimulator, ckpt: dict) -> None:
+    """Load the checkpoint's weights and normalisation statistics into ``sim`` (after the data
+    module set its own); the learned step must be unchanged."""
+    dt = float(sim.dt)
+    prefix = "sim."
+    state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
+    missing, unexpected = sim.load_state_dict(state, strict=False)
+    if missing or unexpected:
+        raise InputError(
+            f"init: the weights do not fit the model (missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]})"
+        )
+    if abs(float(sim.dt) - dt) > 1e-9 * max(dt, 1e-30):
+        raise InputError(f"init: learned step {float(sim.dt):g} s, the data gives {dt:g} s")
+
+
+def merge_cards(initial: dict, new: dict, init: str) -> dict:
+    """The card of a fine-tuned model: ``new``'s, with each training-data range widened to
+    cover ``initial``'s too, and the source recorded under ``fine_tuned_from``."""
+    if not initial or not new:
+        return dict(new or initial) | {"fine_tuned_from": init}
+    old_data, data = initial.get("training_data", {}), dict(new.get("training_data", {}))
+
+    def union(a, b):
+        return [min(a[0], b[0]), max(a[1], b[1])]
+
+    for key in ("particle_radius_m", "particles", "frame_dt_s"):
+        if key in old_data and key in data:
+            data[key] = union(old_data[key], data[key])
+    materials = dict(data.get("materials", {}))
+    for name, bounds in old_data.get("materials", {}).items():
+        materials[name] = union(bounds, materials[name]) if name in materials else bounds
+    data["materials"] = materials
+    data["scene_kinds"] = sorted(set(data.get("scene_kinds", [])) | set(old_data.get("scene_kinds", [])))
+    data["trajectories"] = int(data.get("trajectories", 0)) + int(old_data.get("trajectories", 0))
+    return dict(new) | {"training_data": data, "fine_tuned_from": init}
