@@ -5,7 +5,8 @@ that :data:`granular_pyg.config.CONF_DIR` names, so a wheel runs without a check
 every command the same error style: an expected failure (bad input, a missing or unwritable
 file, a full disk, a model that predicted NaN) prints one ``error:`` message that names the
 thing and the fix, and exits with status 2. A traceback is printed only with
-``GRANULAR_PYG_DEBUG=1`` or ``HYDRA_FULL_ERROR=1``.
+``GRANULAR_PYG_DEBUG=1`` or ``HYDRA_FULL_ERROR=1``. A command line Hydra cannot compose (an
+unknown key or option, a malformed override) is reported the same way, before any work starts.
 """
 
 from __future__ import annotations
@@ -16,6 +17,13 @@ import sys
 from collections.abc import Callable
 
 import hydra
+from hydra.errors import HydraException, InstantiationException
+from omegaconf import OmegaConf
+from omegaconf.errors import (
+    InterpolationResolutionError,
+    MissingMandatoryValue,
+    OmegaConfBaseException,
+)
 
 from granular_pyg.config import CONF_DIR
 from granular_pyg.errors import InputError, NonFiniteError
@@ -32,13 +40,34 @@ def debugging() -> bool:
     return any(os.environ.get(k, "") not in ("", "0") for k in flags)
 
 
+def _config_value_error(exc: BaseException) -> InputError | None:
+    """A ValueError or TypeError a constructor raised on a config value (wrapped by Hydra's
+    ``instantiate``), as an InputError naming the config section; None otherwise."""
+    cause = exc.__cause__
+    if not isinstance(exc, InstantiationException) or not isinstance(cause, ValueError | TypeError):
+        return None
+    if isinstance(cause, InputError):  # names its own key
+        return None
+    section = next(
+        (line[len("full_key:") :].strip() for line in str(exc).splitlines()
+         if line.startswith("full_key:")),
+        "the config",
+    )
+    return InputError(
+        f"{section}: {cause} (check the {section}.* values; GRANULAR_PYG_DEBUG=1 for the traceback)"
+    )
+
+
 def _expected(exc: BaseException) -> BaseException | None:
     """The expected failure behind ``exc`` (Hydra's ``instantiate`` wraps what a constructor
-    raised), or None for a bug."""
+    raised; a ValueError or TypeError of a constructor is a bad config value), or None for a
+    bug."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, (InputError, NonFiniteError, OSError)):
             return exc
+        if (wrapped := _config_value_error(exc)) is not None:
+            return wrapped
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return None
@@ -72,12 +101,73 @@ def reports_errors(func: Callable) -> Callable:
     return run
 
 
+def composition_message(exc: BaseException) -> str:
+    """Hydra's (or OmegaConf's) several-line composition error as one line: the problem and the
+    fix it suggests, the available options listed inline, the search path left out."""
+    key = getattr(exc, "full_key", None)
+    if isinstance(exc, MissingMandatoryValue) and key:
+        return f"{key}: no value (??? in the config); set it on the command line: {key}=..."
+    parts: list[str] = []
+    listing = False  # inside "Available options in 'model':" (one option per line)
+    for raw in str(exc).splitlines():
+        line = raw.strip()
+        if line.startswith(("Config search path", "Set the environment variable")):
+            break
+        if not line or line.startswith(("full_key:", "object_type=", "reference_type=")):
+            continue
+        if listing and raw.startswith("\t"):
+            parts[-1] += (" " if parts[-1].endswith(":") else ", ") + line
+            continue
+        listing = line.endswith(":")
+        parts.append(line)
+    text = " ".join(p if p.endswith((".", ":")) else p + ";" for p in parts).rstrip(";")
+    if key and key not in text:
+        text = f"{key}: {text}"
+    return text.replace("See https", "see https") or type(exc).__name__
+
+
+def _precheck(config_name: str, argv: list[str]) -> None:
+    """Compose ``argv``'s overrides once and report a failure as one ``error:`` line, exit 2.
+    Skipped for Hydra's flags (``--multirun``, ``--help``, ``--cfg``...), which Hydra handles."""
+    if any(arg.startswith("-") for arg in argv) or debugging():
+        return
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
+
+    if GlobalHydra.instance().is_initialized():
+        return
+    try:
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+            cfg = hydra_compose(config_name=config_name, overrides=argv, return_hydra_config=True)
+        for key in cfg:  # interpolations that resolve before the run (not the run folder's)
+            if key != "hydra":
+                try:
+                    node = cfg[key]
+                    if OmegaConf.is_config(node):
+                        OmegaConf.to_container(node, resolve=True)
+                except InterpolationResolutionError as exc:
+                    if "hydra" not in str(exc).lower():
+                        raise
+    except (HydraException, OmegaConfBaseException) as exc:
+        print(f"error: {composition_message(exc)}", file=sys.stderr)
+        sys.exit(EXIT_INPUT_ERROR)
+
+
 def command(config_name: str) -> Callable[[Callable], Callable]:
     """Decorate ``main(cfg)`` as the Hydra entry point over ``conf/<config_name>.yaml``, with
-    :func:`reports_errors`."""
+    :func:`reports_errors`; a command line that does not compose is refused first."""
 
     def decorate(func: Callable) -> Callable:
         app = hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name=config_name)
-        return app(reports_errors(func))
+        hydra_main = app(reports_errors(func))
+
+        @functools.wraps(func)
+        def run(*args, **kwargs):
+            if not args and not kwargs:  # from the command line
+                _precheck(config_name, sys.argv[1:])
+            return hydra_main(*args, **kwargs)
+
+        return run
 
     return decorate

@@ -6,6 +6,7 @@ how to fix it, so a user never has to read a traceback from deep inside torch.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -27,6 +28,18 @@ def whole_number(name: str, value, minimum: int = 0) -> int:
     if not ok or value < minimum:
         raise InputError(f"{name}: expected a whole number >= {minimum}, got {value!r}")
     return value
+
+
+def positive_number(name: str, value) -> float:
+    """``value`` as a finite float ``> 0`` (an int or float; not a bool or a string).
+
+    Raises:
+        InputError: naming ``name`` and the value (``"abc"``, ``0``, ``-1e-3``, ``inf``).
+    """
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if not ok or not math.isfinite(value) or value <= 0:
+        raise InputError(f"{name}: expected a finite number > 0, got {value!r}")
+    return float(value)
 
 
 class NonFiniteError(ArithmeticError):

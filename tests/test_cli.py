@@ -19,17 +19,34 @@ CASES = [
     ("granular_pyg.compare", ["runs=[missing_folder]"], "missing_folder"),
     ("granular_pyg.stress", ["cases.hopper_resting.ckpt=missing.ckpt"], "missing.ckpt"),
     ("granular_pyg.bench", ["suite=rollout_speed", "suite.run.ckpts=[missing.ckpt]"], "missing"),
-    ("granular_pyg.experiments.one_step_bias", ["ckpt=missing.ckpt"], "missing.ckpt"),
+    ("granular_pyg.experiments.one_step_bias", ["ckpt=missing.ckpt", "files=[a.h5]"], "missing"),
+    ("granular_pyg.experiments.one_step_bias", ["ckpt=missing.ckpt"], "files=..."),
     ("granular_pyg.dem.convert", ["missing.dump", "--dem-dt", "2e-5", "--out", "x.h5"], "missing"),
     ("granular_pyg.pretrained.export", ["missing.ckpt", "hopper"], "missing.ckpt"),
     ("granular_pyg.train", ["data.batch_size=0"], "data.batch_size"),
     ("granular_pyg.evaluate", ["ckpt=pretrained:hopper", "out=.", "steps=2.5"], "steps"),
     ("granular_pyg.generate", ["n=3", "out=x", "splits={train:0.0,valid:0.5,test:0.5}"], "splits"),
     ("granular_pyg.data.combine", ["empty_folder"], "empty_folder"),
+    ("granular_pyg.train", ["optim.lr=abc"], "optim.lr"),
+    # command lines Hydra cannot compose: refused before any work, in the same style
+    ("granular_pyg.train", ["model.nope=3"], "+model.nope=3"),
+    ("granular_pyg.train", ["model=v9"], "v1, v2, v3"),
+    ("granular_pyg.train", ["trainer.max_epochs=[1"], "[1"),
+    ("granular_pyg.train", ["data.root=${nope}"], "data.root"),
+    ("granular_pyg.rollout", ["stepz=3"], "+stepz=3"),
+    ("granular_pyg.evaluate", ["~nope"], "nope"),
+    ("granular_pyg.generate", ["scene=hopperx", "out=x"], "hopperx"),
+    ("granular_pyg.compare", ["runz=[a]"], "runz"),
+    ("granular_pyg.stress", ["~cases.nope"], "cases.nope"),
+    ("granular_pyg.bench", ["suite=nope"], "nope"),
+    ("granular_pyg.experiments.one_step_bias", ["ckpz=a"], "ckpz"),
+    ("granular_pyg.experiments.reflection", ["ckpz=a"], "ckpz"),
 ]
 
 
-@pytest.mark.parametrize(("module", "args", "word"), CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize(
+    ("module", "args", "word"), CASES, ids=[f"{c[0]}:{' '.join(c[1])}" for c in CASES]
+)
 def test_bad_input_is_one_error_line_with_status_2(tmp_path, module, args, word):
     done = subprocess.run(
         [sys.executable, "-m", module, *args],
@@ -95,3 +112,15 @@ def test_removing_a_stress_case_leaves_the_others_resolvable():
         assert case not in resolved and all(
             c["ckpt"].startswith("pretrained:") for c in resolved.values()
         )
+
+
+def test_a_composition_error_becomes_one_line_with_the_options_inline():
+    from granular_pyg.cli import composition_message
+
+    text = (
+        "In 'train': Could not find 'model/v9'\n\nAvailable options in 'model':\n\tbase\n\tv1\n"
+        "Config search path:\n\tprovider=hydra, path=pkg://hydra.conf\n"
+    )
+    assert composition_message(Exception(text)) == (
+        "In 'train': Could not find 'model/v9'; Available options in 'model': base, v1"
+    )

@@ -12,7 +12,7 @@ from torch_geometric.data import Batch, Data
 
 from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute_statistics
 from granular_pyg.data.windows import load_split
-from granular_pyg.errors import InputError
+from granular_pyg.errors import InputError, whole_number
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives import Objective
 from granular_pyg.transforms import AddRandomWalkNoise
@@ -163,12 +163,10 @@ class TrajectoryDataModule(L.LightningDataModule):
         if root is None and sample is None:
             raise InputError("data: set data.root (a dataset folder) or data.sample")
         self.root, self.sample = root, sample
-        self.history, self.step = int(history), int(frames_per_step)
-        self.batch_size, self.num_workers = int(batch_size), int(num_workers)
-        if self.batch_size < 1:
-            raise InputError(
-                f"data.batch_size: expected >= 1 windows per batch, got {batch_size!r}"
-            )
+        self.history = whole_number("data.history", history, minimum=1)
+        self.step = whole_number("data.frames_per_step", frames_per_step, minimum=1)
+        self.batch_size = whole_number("data.batch_size (windows per batch)", batch_size, 1)
+        self.num_workers = whole_number("data.num_workers", num_workers)
         self.noise_std = float(noise_std)
         if noise_target not in ("velocity", "position"):
             raise InputError(

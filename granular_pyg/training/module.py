@@ -9,6 +9,7 @@ import numpy as np
 import torch
 from torch_geometric.data import Batch
 
+from granular_pyg.errors import positive_number
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives import Objective, OneStep, masked_mse
 
@@ -46,7 +47,9 @@ class SimulatorModule(L.LightningModule):
         super().__init__()
         self.sim = simulator
         self.objective = objective if objective is not None else OneStep()
-        self.lr, self.lr_final, self.decay_steps = float(lr), float(lr_final), float(decay_steps)
+        self.lr = positive_number("optim.lr", lr)
+        self.lr_final = positive_number("optim.lr_final", lr_final)
+        self.decay_steps = positive_number("optim.decay_steps", decay_steps)
         self.seed = int(seed)
 
     def forward(self, batch: Batch) -> torch.Tensor:
