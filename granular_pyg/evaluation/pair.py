@@ -28,7 +28,12 @@ ANGLE_SCALARS = (
     "angle_of_repose_pred_deg",
     "angle_of_repose_error_deg",
     "angle_of_repose_curve_error_deg",
+    "centre_of_mass_swing_truth_m",
+    "centre_of_mass_swing_pred_m",
 )
+#: s: a drum's bed is taken as settled from this time on (its centre of mass swing is measured
+#: over the frames after it).
+DRUM_SETTLED_S = 1.0
 #: The paper splits the classes at its frame 30: 0.03 s at its 1 ms frames. Taken as a time,
 #: so that long learned steps (20 ms) still split the bed before a hopper drains.
 MIXING_TIME_S = 0.03
@@ -231,6 +236,11 @@ def _scene_observable(truth, t_pos, p_pos, times, scalars, series, skipped) -> t
             # Frame by frame: a bed that swings about the right median shows here.
             "angle_of_repose_curve_error_deg": _nanmean(np.abs(ang_p[late] - ang_t[late])),
         }
+        settled = float(times[0]) + DRUM_SETTLED_S
+        for who in ("truth", "pred"):
+            scalars[f"centre_of_mass_swing_{who}_m"] = metrics.centre_of_mass_swing(
+                series[f"mean_pos_{who}"], times, settled
+            )
         return "angle", "dynamic angle of repose (deg)"
     if scene.kind != "hopper":
         skipped += [

@@ -20,6 +20,7 @@ from granular_pyg.metrics.flow import (
 from granular_pyg.metrics.leaks import leaked_mask, leaked_particles
 from granular_pyg.metrics.physics import (
     centre_of_mass,
+    centre_of_mass_swing,
     crushed_particles,
     discharged_fraction,
     drum_axis,
@@ -29,6 +30,7 @@ from granular_pyg.metrics.physics import (
 
 __all__ = [
     "centre_of_mass",
+    "centre_of_mass_swing",
     "crushed_particles",
     "discharge_rate",
     "discharged_fraction",

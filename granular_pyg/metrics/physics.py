@@ -13,6 +13,7 @@ from granular_pyg.scenes import Scene
 
 __all__ = [
     "centre_of_mass",
+    "centre_of_mass_swing",
     "crushed_particles",
     "discharged_fraction",
     "drum_axis",
@@ -52,6 +53,28 @@ def discharged_fraction(positions: np.ndarray, outlet_z: float = 0.0) -> np.ndar
     """
     z = positions[..., 2]
     return np.mean(np.isnan(z) | (z < outlet_z), axis=1)
+
+
+def centre_of_mass_swing(centres: np.ndarray, times: np.ndarray, after: float) -> float:
+    """How far a bed's centre of mass swings once it should have settled: the largest distance
+    (m) of the centre from its mean position over the frames at ``times >= after``.
+
+    A drum's bed in steady rotation holds its centre still (LIGGGHTS: about a millimetre of
+    jitter); a bed that rocks like a pendulum shows its amplitude here.
+
+    Args:
+        centres: ``[T, 3]`` centre of mass per frame (m), NaN rows where no particle is present.
+        times: ``[T]`` (s).
+        after: s, start of the settled part.
+
+    Returns:
+        The swing (m); NaN with fewer than two settled frames.
+    """
+    late = np.asarray(centres, dtype=np.float64)[np.asarray(times) >= after - 1e-9]
+    late = late[np.isfinite(late).all(axis=1)]
+    if len(late) < 2:
+        return float("nan")
+    return float(np.linalg.norm(late - late.mean(axis=0), axis=1).max())
 
 
 def centre_of_mass(positions: np.ndarray) -> np.ndarray:

@@ -73,6 +73,12 @@ def test_a_perfect_drum_rollout_has_no_angle_error(drum):
     assert 20 < ev.scalars["angle_of_repose_truth_deg"] < 45
     assert ev.scalars["angle_of_repose_error_deg"] == 0
     assert ev.scalars["angle_of_repose_curve_error_deg"] == 0
+    swing = ev.scalars["centre_of_mass_swing_truth_m"]
+    times = ev.series["times"]
+    if times[-1] - times[0] > 1.0:  # a settled part to measure
+        assert 0 <= swing == ev.scalars["centre_of_mass_swing_pred_m"] < 0.01
+    else:
+        assert np.isnan(swing)
 
 
 def test_a_drum_bed_swinging_about_the_right_median_shows_in_the_curve_error(drum):

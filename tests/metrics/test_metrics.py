@@ -12,6 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 from granular_pyg.errors import InputError
 from granular_pyg.metrics import (
+    centre_of_mass_swing,
     crushed_particles,
     discharge_rate,
     dynamic_angle_of_repose,
@@ -250,3 +251,14 @@ def test_the_drum_axis_comes_from_the_rotating_wall():
     assert outlet_height(hopper) == 0.0  # the builder's outlet
     hopper.params["outlet_z"] = 0.02
     assert outlet_height(hopper) == 0.02
+
+
+def test_centre_of_mass_swing_is_the_amplitude_after_the_settling_time():
+    times = np.arange(8) * 0.25  # 0 ... 1.75 s
+    centres = np.zeros((8, 3))
+    centres[:4, 0] = 1.0  # a big swing before 1 s does not count
+    centres[4:, 0] = [0.002, -0.002, 0.002, -0.002]  # +-2 mm about 0 from 1 s on
+    centres[5, :] = np.nan  # a frame without particles is left out
+    swing = centre_of_mass_swing(centres, times, after=1.0)
+    assert swing == pytest.approx(0.002 + 0.002 / 3, rel=1e-12)  # 2, 2, -2 mm: mean 2/3 mm, farthest 8/3 mm
+    assert np.isnan(centre_of_mass_swing(centres, times, after=1.75))
