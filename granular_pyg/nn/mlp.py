@@ -2,11 +2,28 @@
 
 from __future__ import annotations
 
-from torch import nn
+import torch
+from torch import Tensor, nn
 
 from granular_pyg.errors import InputError
 
-__all__ = ["MLP"]
+__all__ = ["MLP", "ROW_CHUNK", "row_chunks"]
+
+#: Rows per block of the blocked inference path: 4,096 rows of 128 float32 are 2 MiB, so a
+#: block's hidden activations stay in a core's L2 cache instead of streaming through memory.
+ROW_CHUNK = 4096
+
+
+def row_chunks(rows: int, chunk: int | None = None):
+    """Slices of ``rows`` in blocks of ``chunk`` (default :data:`ROW_CHUNK`) rows."""
+    chunk = chunk or ROW_CHUNK
+    return (slice(start, min(start + chunk, rows)) for start in range(0, rows, chunk))
+
+
+def blocked_inference(rows: int) -> bool:
+    """Whether a layer over ``rows`` rows takes the blocked path: no autograd graph is being
+    recorded (inference, rollouts) and there is more than one block."""
+    return rows > ROW_CHUNK and not torch.is_grad_enabled()
 
 
 def _check_int(name: str, value: object, minimum: int) -> int:
@@ -60,3 +77,23 @@ class MLP(nn.Sequential):
         super().__init__(*layers)
         self.in_dim = in_dim
         self.out_dim = out_dim
+
+    def forward(self, x: Tensor) -> Tensor:
+        """``[*, in_dim] -> [*, out_dim]``. Without autograd and over more than
+        :data:`ROW_CHUNK` rows, the rows run in cache-sized blocks (ReLU in place), so the
+        hidden activations never exist for all rows at once: same result, less memory traffic
+        and a peak of one block's activations."""
+        if x.dim() != 2 or not blocked_inference(x.shape[0]):
+            return super().forward(x)
+        out = x.new_empty(x.shape[0], self.out_dim)
+        for rows in row_chunks(x.shape[0]):
+            out[rows] = self.run_block(x[rows])
+        return out
+
+    def run_block(self, h: Tensor, start: int = 0) -> Tensor:
+        """The layers from index ``start`` on, over one block of rows (ReLU in place when no
+        autograd graph is recorded)."""
+        in_place = not torch.is_grad_enabled()
+        for module in list(self)[start:]:
+            h = h.relu_() if in_place and isinstance(module, nn.ReLU) else module(h)
+        return h

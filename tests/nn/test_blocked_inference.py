@@ -1,0 +1,71 @@
+"""The blocked inference path (edges and MLP rows in cache-sized blocks, ReLU in place) gives
+the numbers of the plain path, for every layer of the zoo and a whole model; training (with
+autograd) keeps the plain path and its gradients."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import granular_pyg.nn.mlp as mlp_module
+from granular_pyg.nn import EncodeProcessDecode, Processor
+from granular_pyg.nn.mlp import MLP, row_chunks
+
+LATENT = 16
+
+
+def _graph(num_nodes=40, num_edges=333, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.randn(num_nodes, 7, generator=g)
+    edge_index = torch.randint(0, num_nodes, (2, num_edges), generator=g)
+    edge_attr = torch.randn(num_edges, 4, generator=g)
+    return x, edge_index, edge_attr
+
+
+def test_row_chunks_cover_every_row_once():
+    for rows, chunk in [(0, 4), (1, 4), (8, 4), (9, 4), (10, 3)]:
+        covered = [i for s in row_chunks(rows, chunk) for i in range(rows)[s]]
+        assert covered == list(range(rows))
+        assert all(s.stop - s.start <= chunk for s in row_chunks(rows, chunk))
+
+
+@pytest.mark.parametrize(
+    ("layer", "aggr"), [("interaction", "sum"), ("interaction", "mean"), ("attention", "sum")]
+)
+def test_blocked_inference_equals_the_plain_path(monkeypatch, layer, aggr):
+    torch.manual_seed(0)
+    model = EncodeProcessDecode(
+        7, 4, 3, Processor(latent=LATENT, num_steps=3, layer=layer, aggr=aggr), latent=LATENT
+    ).eval()
+    x, edge_index, edge_attr = _graph()
+    with torch.inference_mode():
+        plain = model(x, edge_index, edge_attr)  # 333 rows <= 4,096: one block
+        monkeypatch.setattr(mlp_module, "ROW_CHUNK", 10)  # 34 blocks of edges, 4 of nodes
+        blocked = model(x, edge_index, edge_attr)
+    torch.testing.assert_close(blocked, plain, rtol=1e-6, atol=1e-7)
+
+
+def test_training_keeps_the_plain_path_and_its_gradients(monkeypatch):
+    torch.manual_seed(0)
+    model = EncodeProcessDecode(7, 4, 3, Processor(latent=LATENT, num_steps=2), latent=LATENT)
+    x, edge_index, edge_attr = _graph()
+
+    def grads():
+        model.zero_grad()
+        model(x, edge_index, edge_attr).square().sum().backward()
+        return [p.grad.clone() for p in model.parameters()]
+
+    plain = grads()
+    monkeypatch.setattr(mlp_module, "ROW_CHUNK", 10)
+    for a, b in zip(grads(), plain, strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+
+
+def test_an_mlp_over_many_rows_in_inference_equals_row_by_row_blocks(monkeypatch):
+    torch.manual_seed(1)
+    mlp = MLP(5, 8, 3, num_hidden_layers=2, layer_norm=True).eval()
+    x = torch.randn(25, 5)
+    with torch.no_grad():
+        plain = torch.nn.Sequential.forward(mlp, x)
+        monkeypatch.setattr(mlp_module, "ROW_CHUNK", 4)
+        torch.testing.assert_close(mlp(x), plain, rtol=1e-6, atol=1e-7)
