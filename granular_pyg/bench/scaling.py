@@ -84,7 +84,7 @@ def _exponent(sizes: list[int], seconds: list[float]) -> float:
 
 def run(
     particle_counts: tuple[int, ...] = (1000, 3000, 10000, 30000, 100000),
-    model_particle_counts: tuple[int, ...] = (1000, 3000, 10000, 30000),
+    model_particle_counts: tuple[int, ...] = (1000, 3000, 10000, 30000, 100000),
     triangle_counts: tuple[int, ...] = (100, 1000, 10000, 100000),
     fixed_triangles: int = 424,
     fixed_particles: int = 20000,

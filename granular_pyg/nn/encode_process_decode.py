@@ -79,5 +79,7 @@ class EncodeProcessDecode(nn.Module):
         """
         dtype = self.decoder[-1].weight.dtype
         _check_graph(x, edge_index, edge_attr, self.node_in, self.edge_in, dtype)
-        latent_x, _ = self.processor(self.node_encoder(x), edge_index, self.edge_encoder(edge_attr))
+        latent_x, _ = self.processor(
+            self.node_encoder(x), edge_index, self.edge_encoder(edge_attr), overwrite=True
+        )
         return self.decoder(latent_x)

@@ -57,7 +57,9 @@ class InteractionNetwork(MessagePassing):
         self.edge_mlp = MLP(3 * self.latent, self.latent, self.latent, mlp_layers, layer_norm=True)
         self.node_mlp = MLP(2 * self.latent, self.latent, self.latent, mlp_layers, layer_norm=True)
 
-    def forward(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(
+        self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, overwrite: bool = False
+    ) -> tuple[Tensor, Tensor]:
         """Run one step.
 
         Shapes are not checked here (see :class:`~granular_pyg.nn.Processor`).
@@ -66,29 +68,36 @@ class InteractionNetwork(MessagePassing):
             x: ``[num_nodes, latent]`` node latents.
             edge_index: ``[2, num_edges]`` (source, target) node indices, int64.
             edge_attr: ``[num_edges, latent]`` edge latents.
+            overwrite: the caller no longer needs ``edge_attr``: on the blocked inference path
+                the updated latents are written into it (one ``[E, L]`` buffer, not two).
 
         Returns:
             ``(x_new [num_nodes, latent], edge_attr_new [num_edges, latent])``.
         """
         num_nodes = x.size(0)
-        edge_attr = self.update_edges(x, edge_index, edge_attr)
+        edge_attr = self.update_edges(x, edge_index, edge_attr, overwrite)
         messages = self.edge_messages(edge_index, edge_attr, num_nodes)
         aggregated = self.propagate(edge_index, m=messages, size=(num_nodes, num_nodes))
         x = x + self.node_mlp(torch.cat([x, aggregated], dim=-1))
         return x, edge_attr
 
-    def update_edges(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor) -> Tensor:
+    def update_edges(
+        self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, overwrite: bool = False
+    ) -> Tensor:
         """Residual edge update ``e'_ij = e_ij + MLP_e([x_i, x_j, e_ij])``: ``[num_edges, latent]``.
 
         The first Linear layer of ``edge_mlp`` runs split into its column blocks: the ``x_i``
         and ``x_j`` terms (and the bias) once per node, gathered per edge. Without autograd
         (rollouts) the edges run in cache-sized blocks (:func:`~granular_pyg.nn.mlp.row_chunks`):
-        the same numbers, but memory traffic and peak memory of one block's hidden layers.
+        the same numbers, but memory traffic and peak memory of one block's hidden layers. A
+        block reads only its own rows of ``e``, so with ``overwrite`` the result goes into
+        ``edge_attr`` itself.
 
         Args:
             x: ``[num_nodes, latent]`` node latents.
             edge_index: ``[2, num_edges]`` (source ``j``, target ``i``) node indices.
             edge_attr: ``[num_edges, latent]`` edge latents ``e``.
+            overwrite: write the result into ``edge_attr`` (blocked inference path only).
         """
         first, latent = self.edge_mlp[0], self.latent
         weight = first.weight  # [out, 3 L]: column blocks for x_i, x_j, e_ij
@@ -104,7 +113,7 @@ class InteractionNetwork(MessagePassing):
 
         if not blocked_inference(edge_attr.shape[0]):
             return block(slice(None))
-        out = torch.empty_like(edge_attr)
+        out = edge_attr if overwrite else torch.empty_like(edge_attr)
         for rows in row_chunks(edge_attr.shape[0]):
             out[rows] = block(rows)
         return out

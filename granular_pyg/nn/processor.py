@@ -101,13 +101,16 @@ class Processor(nn.Module):
             for _ in range(self.num_steps)
         )
 
-    def forward(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor) -> tuple[Tensor, Tensor]:
+    def forward(
+        self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, overwrite: bool = False
+    ) -> tuple[Tensor, Tensor]:
         """Run every step.
 
         Args:
             x: ``[num_nodes, latent]`` node latents.
             edge_index: ``[2, num_edges]`` (source, target) node indices, int64.
             edge_attr: ``[num_edges, latent]`` edge latents.
+            overwrite: the caller no longer needs ``edge_attr`` (inference may reuse it).
 
         Returns:
             ``(x [num_nodes, latent], edge_attr [num_edges, latent])`` after the last step.
@@ -117,8 +120,9 @@ class Processor(nn.Module):
         """
         dtype = self.layers[0].node_mlp[0].weight.dtype
         _check_graph(x, edge_index, edge_attr, self.latent, self.latent, dtype)
-        for layer in self.layers:
-            x, edge_attr = layer(x, edge_index, edge_attr)
+        for i, layer in enumerate(self.layers):
+            # after the first step the edge latents are this loop's own
+            x, edge_attr = layer(x, edge_index, edge_attr, overwrite=overwrite or i > 0)
         return x, edge_attr
 
     def extra_repr(self) -> str:
