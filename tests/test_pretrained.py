@@ -64,7 +64,7 @@ def test_export_keeps_config_and_weights_only(tmp_path):
 @pytest.mark.parametrize("name", ["hopper", "drum"])
 def test_the_shipped_models_roll_out_as_stored(name):
     """The shipped models give the stored rollout (4 learned steps on the bundled test
-    trajectory, recorded before the training code was restructured) to 1e-6 m."""
+    trajectory, recorded when each model was shipped) to 1e-6 m."""
     reference = np.load(Path(__file__).parent / "data" / "pretrained_rollout_reference.npz")
     sim, _ = load_simulator(f"pretrained:{name}")
     truth = read_trajectory(sample_files(name, "test")[0])
