@@ -62,6 +62,7 @@ def evaluate(cfg: DictConfig) -> Path:
                 progress=cfg.progress,
                 skin=cfg.skin,
                 wall_guard=cfg.wall_guard,
+                precision=str(cfg.get("precision", "32")),
             )
             pred_file = out / "rollouts" / f"{split}_{file.stem}.h5"
             pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(file)}

@@ -137,6 +137,7 @@ def rollout_trajectory(
     skin: float | None = None,
     wall_guard: bool = False,
     stop_when_empty: bool = False,
+    precision: str = "32",
 ) -> Trajectory:
     """Roll ``sim`` out over ``truth``'s Scene from its ground-truth initial states.
 
@@ -154,6 +155,8 @@ def rollout_trajectory(
             counts the corrections (``wall_guard_corrections``, particle-steps).
         stop_when_empty: end the rollout after the step that leaves no particle in the scene
             (metadata ``stopped_empty``: the steps taken).
+        precision: the network's precision, ``"32"`` or ``"bf16"`` (bfloat16 matrix products,
+            about 2x faster on CPUs with AVX-512 BF16; see ``docs/results.md`` for its accuracy).
 
     Returns:
         A Trajectory with ``H + 1 + steps`` frames every ``k`` saved frames from
@@ -177,6 +180,7 @@ def rollout_trajectory(
     t0 = float(truth.times[initial[-1]])
     settings = {"start_frame": int(start_frame), "dtype": str(dtype).removeprefix("torch.")}
     settings |= {"skin": skin, "time_step_multiple": k, "wall_guard": bool(wall_guard)}
+    settings["precision"] = str(precision)
     guard = WallGuard(torch.from_numpy(truth.radii).double()) if wall_guard else None
     outflow = truth.scene.outflow_z
     stopped = []
@@ -191,6 +195,8 @@ def rollout_trajectory(
         return False
 
     check = stop_if_empty if stop_when_empty else None
+    before = sim.network_dtype
+    sim.set_network_precision(str(precision))
     try:
         pred = sim.rollout(
             seq,
@@ -208,6 +214,8 @@ def rollout_trajectory(
         done = exc.positions_so_far
         exc.partial = _prediction(truth, initial, done, dt, settings | {"failed_step": exc.step})
         raise
+    finally:
+        sim.network_dtype = before
     if guard is not None:
         settings["wall_guard_corrections"] = guard.corrected
     if stopped:

@@ -63,6 +63,7 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
             skin=cfg.skin,
             wall_guard=cfg.wall_guard,
             stop_when_empty=True,
+            precision=str(cfg.get("precision", "32")),
         )
     except NonFiniteError as exc:
         partial = out.with_suffix(".partial.h5")

@@ -150,6 +150,12 @@ NUM_NORMAL_FEATURES = 6
 NUM_EDGE_FEATURES = 4
 
 
+#: Precisions of the network at inference: ``"32"`` (float32) or ``"bf16"`` (the matrix
+#: products in bfloat16 under autocast, about 2x faster on CPUs with AVX-512 BF16; positions,
+#: graphs, normalisation and integration stay float32 and float64).
+NETWORK_PRECISIONS = ("32", "bf16")
+
+
 class LearnedSimulator(nn.Module):
     """Encode-process-decode network over particles and virtual wall nodes.
 
@@ -224,6 +230,7 @@ class LearnedSimulator(nn.Module):
             node_in, NUM_EDGE_FEATURES, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
         )
         self.register_buffer("dt", torch.tensor(float(dt), dtype=torch.float64))
+        self.network_dtype: torch.dtype | None = None  # None: float32 (see set_network_precision)
         for name, value in (
             ("vel_mean", 0.0),
             ("vel_std", 1.0),
@@ -390,9 +397,23 @@ class LearnedSimulator(nn.Module):
 
     # -- prediction and integration -----------------------------------------------------------
 
+    def set_network_precision(self, precision: str) -> None:
+        """Run the network in ``precision`` (one of :data:`NETWORK_PRECISIONS`) from now on."""
+        if precision not in NETWORK_PRECISIONS:
+            raise InputError(
+                f"precision: expected one of {list(NETWORK_PRECISIONS)}, got {precision!r}"
+            )
+        self.network_dtype = torch.bfloat16 if precision == "bf16" else None
+
     def forward(self, graph: Data | Batch) -> torch.Tensor:
-        """Normalised acceleration ``[num real particles, 3]`` of a graph or a batch of graphs."""
-        out = self.model(graph.x, graph.edge_index, graph.edge_attr)
+        """Normalised acceleration ``[num real particles, 3]`` (float32) of a graph or a batch
+        of graphs."""
+        if self.network_dtype is None:
+            out = self.model(graph.x, graph.edge_index, graph.edge_attr)
+        else:
+            with torch.autocast(graph.x.device.type, dtype=self.network_dtype):
+                out = self.model(graph.x, graph.edge_index, graph.edge_attr)
+            out = out.float()
         return out[~graph.is_wall]
 
     def predict_acceleration(

@@ -69,9 +69,12 @@ def run(
     wall_guard: bool = False,
     device: str = "cpu",
     repeats: int = 1,
+    precisions: tuple[str, ...] = ("32",),
 ) -> SuiteResult:
     """Run the suite; see the module docstring. With ``wall_guard`` the learned rollout is
-    also timed with the wall guard (a second row). ``repeats`` is unused (one run each)."""
+    also timed with the wall guard (a second row); each of ``precisions`` (the network's, see
+    ``LearnedSimulator.set_network_precision``) gets its rows, and the targets are those of the
+    last precision's unguarded rollout. ``repeats`` is unused (one run each)."""
     truth = read_trajectory(trajectory or sample_files("hopper", "test")[0])
     scene = truth.scene
     simulated = float(truth.times[-1] - truth.times[0])
@@ -93,11 +96,14 @@ def run(
     if device != "cpu":
         with torch.inference_mode():
             rollout_trajectory(sim, truth, steps=3, progress=False)  # kernels, allocator
-    for guarded in (False, True) if wall_guard else (False,):
+    runs = [(p, g) for p in map(str, precisions) for g in ((False, True) if wall_guard else (False,))]
+    for precision, guarded in runs:
         with torch.inference_mode():
             synchronize(device)
             start = time.perf_counter()
-            pred = rollout_trajectory(sim, truth, progress=False, skin=skin, wall_guard=guarded)
+            pred = rollout_trajectory(
+                sim, truth, progress=False, skin=skin, wall_guard=guarded, precision=precision
+            )
             synchronize(device)
             wall = time.perf_counter() - start
         scalars = evaluate_pair(truth, pred).scalars
@@ -107,6 +113,7 @@ def run(
                 "simulator": f"learned ({model.get('normals')}, {model['processor']['layer']}, "
                 f"latent {model['latent']}, k = {pred.metadata['time_step_multiple']}"
                 + (f", {device}" if device != "cpu" else "")
+                + (", bf16" if precision == "bf16" else "")
                 + (", wall guard)" if guarded else ")"),
                 "simulated_s": learned_sim,
                 "wall_s": wall,

@@ -29,8 +29,8 @@ def _check_graph(
 ) -> None:
     """Check ``x [N, node_dim]``, ``edge_index [2, E]`` (int64) and ``edge_attr [E, edge_dim]``.
 
-    Shapes, dtypes (``x`` and ``edge_attr`` in the parameters' ``dtype``) and index ranges only:
-    the NaN/Inf check is off for speed.
+    Shapes, dtypes (``x`` and ``edge_attr`` in the parameters' ``dtype``, any floating dtype
+    under autocast, which mixes them) and index ranges only: the NaN/Inf check is off for speed.
 
     Raises:
         InputError: naming the offending argument.
@@ -40,7 +40,8 @@ def _check_graph(
     check_tensor(
         "edge_attr", edge_attr, (edge_index.size(1), edge_dim), floating=False, finite=False
     )
-    if x.dtype != dtype or edge_attr.dtype != dtype:
+    mixed = torch.is_autocast_enabled(x.device.type)
+    if not mixed and (x.dtype != dtype or edge_attr.dtype != dtype):
         raise InputError(
             f"x/edge_attr: expected {dtype} like the model's parameters, got "
             f"{x.dtype}/{edge_attr.dtype}; convert the inputs or the model with .to()"
