@@ -27,6 +27,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from granular_pyg.cli import reports_errors
 from granular_pyg.data import load_split
@@ -114,7 +115,8 @@ def fine_tune_curve(
                 with atomic_write(snapshot, "wb") as fh:
                     fh.write(ckpt.read_bytes())
             point = _evaluate(snapshot, scored, run / f"evaluate_{budget}min", threads)
-            curve["points"].append({"new": n, "minutes": budget, **point})
+            steps = int(torch.load(snapshot, map_location="cpu", weights_only=False)["global_step"])
+            curve["points"].append({"new": n, "minutes": budget, "steps": steps, **point})
             _write(curve, out)
     _write(curve, out)
     return curve
@@ -131,13 +133,13 @@ def _write(curve: dict, out: Path) -> None:
     with atomic_write(out / "curve.json") as fh:
         json.dump(curve, fh, indent=1)
     rows = [
-        [p["new"], p["minutes"], f"{100 * p['discharge_rate_abs_error_mean']:.1f}%",
+        [p["new"], p["minutes"], p.get("steps", 0), f"{100 * p['discharge_rate_abs_error_mean']:.1f}%",
          f"{100 * p['discharge_rate_abs_error_worst']:.1f}%", f"{p['leaked_particles']:.0f}",
          f"{p['crushed_particles']:.0f} ({p['crushed_particles_truth']:.0f})"]
         for p in curve["points"]
     ]
     table = markdown_table(
-        ["new trajectories", "training minutes", "discharge-rate error, mean", "worst",
+        ["new trajectories", "training minutes", "steps", "discharge-rate error, mean", "worst",
          "leaked (mean)", "crushed (LIGGGHTS)"],
         rows,
     )
