@@ -36,7 +36,9 @@ class _StepClock(L.Callback):
         self.end = time.perf_counter()
 
 
-def _throughput(processor: str, steps: int, warmup: int, overrides: list[str]) -> dict:
+def _throughput(
+    processor: str, steps: int, warmup: int, overrides: list[str], precision: str = "32-true"
+) -> dict:
     cfg = compose("train", [f"model/processor={processor}", *overrides])
     L.seed_everything(cfg.seed)
     sim = instantiate(cfg.model)
@@ -55,11 +57,13 @@ def _throughput(processor: str, steps: int, warmup: int, overrides: list[str]) -
         enable_progress_bar=False,
         enable_model_summary=False,
         callbacks=[clock],
+        precision=precision,
     )
     trainer.fit(module, datamodule=data)
     seconds = clock.end - clock.start
     return {
         "processor": processor,
+        "precision": precision,
         "parameters": sum(p.numel() for p in sim.parameters()),
         "batch_size": data.batch_size,
         "steps": steps,
@@ -75,16 +79,26 @@ def run(
     warmup: int = 3,
     overrides: tuple[str, ...] = (),
     repeats: int = 1,
+    precisions: tuple[str, ...] = ("32-true",),
 ) -> SuiteResult:
-    """Run the suite; see the module docstring. ``repeats`` is unused (one timed window)."""
-    rows = [_throughput(p, steps, warmup, list(overrides)) for p in processors]
-    results = {f"training/{r['processor']}/samples_per_s": r["samples_per_s"] for r in rows}
+    """Run the suite; see the module docstring. ``precisions``: Lightning's (``32-true``,
+    ``bf16-mixed``: matrix products in bfloat16 under autocast), a row each per processor.
+    ``repeats`` is unused (one timed window)."""
+    rows = [
+        _throughput(p, steps, warmup, list(overrides), str(precision))
+        for p in processors
+        for precision in precisions
+    ]
+    results = {
+        f"training/{r['processor']}/{r['precision']}/samples_per_s": r["samples_per_s"]
+        for r in rows
+    }
     notes = (
         f"Default training config on the bundled hopper sample, {steps} optimiser steps timed "
         f"after {warmup} warm-up steps; overrides: {list(overrides) or 'none'}."
     )
     fig, ax = plt.subplots(figsize=(5, 3))
-    ax.bar([r["processor"] for r in rows], [r["samples_per_s"] for r in rows])
+    ax.bar([f"{r['processor']}\n{r['precision']}" for r in rows], [r["samples_per_s"] for r in rows])
     ax.set_ylabel("training samples / s")
     ax.set_title("Training throughput (CPU)")
     fig.tight_layout()
