@@ -99,11 +99,13 @@ def _train(init: str, pool: list[Path], valid: list[Path], minutes: int, run: Pa
 
 def fine_tune_curve(
     init: str, family: Path, new: list[int], minutes: list[int], out: Path, threads: int = 1,
-    overrides: list[str] | None = None,
+    overrides: list[str] | None = None, pool_size: int | None = None,
 ) -> dict:
-    """Run (or continue) the curve; returns it (also written to ``out/curve.json``)."""
+    """Run (or continue) the curve; returns it (also written to ``out/curve.json``).
+    ``pool_size``: training trajectories set aside for the runs (default the largest of
+    ``new``); the rest are scored, so calls that run parts of one curve must agree on it."""
     new, minutes = sorted(set(new)), sorted(set(minutes))
-    pool, valid, scored = split_family(family, max(new))
+    pool, valid, scored = split_family(family, max(max(new), pool_size or 0))
     curve = {"init": init, "family": str(family), "scored": [str(p) for p in scored],
              "points": [{"new": 0, "minutes": 0, **_evaluate_init(init, scored, out, threads)}]}
     for n in new:
@@ -183,6 +185,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--minutes", type=int, nargs="+", default=[10, 30, 60])
     parser.add_argument("--out", type=Path, default=Path("outputs/fine_tune_curve"))
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--pool", type=int, default=None,
+        help="training trajectories set aside (default: the largest --new); the rest are scored",
+    )
     parser.add_argument("overrides", nargs="*", help="extra train overrides (key=value)")
     args = parser.parse_args(argv)
     for n in args.new:
@@ -190,7 +196,7 @@ def main(argv: list[str] | None = None) -> None:
     for m in args.minutes:
         whole_number("--minutes", m, minimum=1)
     curve = fine_tune_curve(args.init, args.family, args.new, args.minutes, args.out,
-                            args.threads, args.overrides)
+                            args.threads, args.overrides, args.pool)
     print(f"curve: {args.out / 'curve.md'} ({len(curve['points'])} points)")
 
 
