@@ -10,6 +10,16 @@ Command line::
 stitched on their TIMESTEPs (:mod:`granular_pyg.dem.stitch`). The dumps need the columns ``id x
 y z vx vy vz radius`` (e.g. ``dump d all custom 125 post/dump id type x y z vx vy vz radius``).
 
+Frames that are not evenly spaced (a missing frame) are refused, naming the TIMESTEPs, unless
+``--split-gaps`` is given: then each run of evenly spaced frames is written as its own
+trajectory, ``--out run.h5`` -> ``run_part0.h5``, ``run_part1.h5``, ... (numbered in TIMESTEP
+order over the parts written; every file checked like ``--out`` before any part is built, and
+written atomically). Each part's times start at 0 at its first frame, as a single file's do
+(its first TIMESTEP is in its metadata), and its walls are the run's walls re-based on that
+frame (:func:`trajectories_from_dumps`). Runs of fewer than :data:`MIN_PART_FRAMES` frames are
+skipped and parts of fewer than :data:`ROLLOUT_FRAMES` (too short to roll out from) written,
+each with a ``warning:`` line on standard error.
+
 What a dump does not hold comes from (each value from the first source that gives it; two
 sources that give different values are refused, naming both):
 
@@ -34,14 +44,16 @@ import argparse
 import dataclasses
 import math
 import os
-from collections.abc import Sequence
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from granular_pyg.cli import reports_errors
-from granular_pyg.dem.dump import frames_to_arrays
+from granular_pyg.dem.dump import DumpFrame, frames_to_arrays
 from granular_pyg.dem.import_checks import (
     check_dem_dt,
     check_frames_finite,
@@ -50,17 +62,39 @@ from granular_pyg.dem.import_checks import (
 from granular_pyg.dem.liggghts_input import RunScript, read_run_script
 from granular_pyg.dem.mesh_dump import read_mesh_dumps
 from granular_pyg.dem.outflow import apply_outflow, check_no_reappearance
-from granular_pyg.dem.stitch import read_dumps
-from granular_pyg.dem.wall_import import import_walls, load_stl_wall
+from granular_pyg.dem.stitch import read_dump_runs, read_dumps
+from granular_pyg.dem.wall_import import ImportedWall, import_walls, load_stl_wall
 from granular_pyg.dem.walls_config import UNITS, WallsConfig, read_walls_config
 from granular_pyg.errors import InputError
 from granular_pyg.io import check_output
 from granular_pyg.io.trajectory import Trajectory, write_trajectory
-from granular_pyg.scenes.scene import SCENE_KINDS, Materials, ParticleSpec, Scene
+from granular_pyg.scenes.scene import (
+    SCENE_KINDS,
+    Materials,
+    ParticleSpec,
+    Scene,
+    Wall,
+    WallMotion,
+)
 
-__all__ = ["load_stl_wall", "main", "trajectory_from_dumps"]
+__all__ = [
+    "MIN_PART_FRAMES",
+    "ROLLOUT_FRAMES",
+    "DumpParts",
+    "load_stl_wall",
+    "main",
+    "part_path",
+    "trajectories_from_dumps",
+    "trajectory_from_dumps",
+]
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
+
+#: Fewest frames of a part ``--split-gaps`` writes; shorter runs are skipped with a warning.
+MIN_PART_FRAMES = 3
+#: Frames a rollout starts from: ``H + 1`` with the model's history ``H = 5``
+#: (``conf/model/base.yaml``); a shorter part is written, with a warning.
+ROLLOUT_FRAMES = 6
 
 PathLike = str | os.PathLike
 
@@ -116,9 +150,143 @@ def trajectory_from_dumps(
 
     Raises:
         FileNotFoundError: a file does not exist.
-        InputError: malformed inputs, sources that disagree, or a failed sanity check; the
-            message names the file, value and fix.
+        InputError: malformed inputs, sources that disagree, frames not evenly spaced (see
+            :func:`trajectories_from_dumps` for one trajectory per evenly spaced run), or a
+            failed sanity check; the message names the file, value and fix.
     """
+    found = _read_sources(dem_dt, walls, input_script, log)
+    frames = read_dumps(dumps, on_truncated=on_truncated, pattern=pattern)
+    (traj,) = _trajectories(
+        found,
+        [frames],
+        frames,
+        dumps=dumps,
+        stl_files=stl_files,
+        gravity=gravity,
+        outflow_z=outflow_z,
+        mesh_dumps=mesh_dumps,
+        mesh_pattern=mesh_pattern,
+        kind=kind,
+        units=units,
+    )
+    return traj
+
+
+@dataclass
+class DumpParts:
+    """What :func:`trajectories_from_dumps` made of dumps with gaps.
+
+    Attributes:
+        parts: one trajectory per run of at least ``min_frames`` evenly spaced frames, in
+            TIMESTEP order.
+        skipped: ``(first TIMESTEP, last TIMESTEP, frames)`` of each shorter run, left out.
+    """
+
+    parts: list[Trajectory]
+    skipped: list[tuple[int, int, int]]
+
+
+def trajectories_from_dumps(
+    dumps: PathLike | Sequence[PathLike],
+    stl_files: Sequence[PathLike] = (),
+    dem_dt: float | None = None,
+    gravity: tuple[float, float, float] | None = None,
+    outflow_z: float | None = None,
+    on_truncated: str = "warn",
+    pattern: str = "*",
+    *,
+    walls: PathLike | WallsConfig | None = None,
+    input_script: PathLike | None = None,
+    log: PathLike | None = None,
+    mesh_dumps: Sequence[PathLike] = (),
+    mesh_pattern: str = "*",
+    kind: str | None = None,
+    units: str | None = None,
+    min_frames: int = MIN_PART_FRAMES,
+    check_parts: Callable[[int], None] | None = None,
+) -> DumpParts:
+    """One Trajectory per run of evenly spaced frames (``convert --split-gaps``), where
+    :func:`trajectory_from_dumps` refuses a gap.
+
+    The stitched frames are cut into runs (:func:`granular_pyg.dem.stitch.evenly_spaced_runs`);
+    each run of at least ``min_frames`` frames becomes a trajectory built as
+    :func:`trajectory_from_dumps` builds the whole: its times start at 0 at the part's first
+    frame (the converter always counts recorded time from the first frame converted; the
+    part's first TIMESTEP is its metadata's ``first_timestep``), its ``frame_dt`` is the part's
+    spacing, and outflow, particles never present and the sanity checks are per part.
+
+    The walls are resolved once for the whole run, as without gaps (``walls.yaml`` times count
+    from the first dump frame; the script's motions and the mesh dumps, all of them, fitted to
+    one motion, on TIMESTEPs), then re-based on each part's first frame: their vertices are
+    the pose at that frame, their motion and removal times count from it, and a wall removed
+    by then is left out of that part. An oscillation that has run a fractional number of
+    periods by a part's start is refused (a WallMotion starts its sine at its start time).
+
+    Args:
+        dumps, stl_files, dem_dt, gravity, outflow_z, on_truncated, pattern, walls,
+        input_script, log, mesh_dumps, mesh_pattern, kind, units: as for
+            :func:`trajectory_from_dumps`.
+        min_frames: the fewest frames of a part; shorter runs are skipped (reported in
+            ``skipped``).
+        check_parts: called with the number of parts once the dumps are read and before any
+            part is built (the command line checks its output files there).
+
+    Returns:
+        The parts and the skipped runs. Each part's metadata also holds ``split``: ``{"part":
+        k, "parts": n, "timesteps": [first, last], "offset": the recorded time (s) of its
+        first frame from the first dump frame}``.
+
+    Raises:
+        FileNotFoundError: a file does not exist.
+        InputError: as :func:`trajectory_from_dumps` (except for the gaps), or no run of
+            ``min_frames`` frames.
+    """
+    found = _read_sources(dem_dt, walls, input_script, log)
+    runs = read_dump_runs(dumps, on_truncated=on_truncated, pattern=pattern)
+    kept = [r for r in runs if len(r) >= min_frames]
+    skipped = [(r[0].timestep, r[-1].timestep, len(r)) for r in runs if len(r) < min_frames]
+    if not kept:
+        raise InputError(
+            f"dumps: no run of at least {min_frames} evenly spaced frames to write (runs: "
+            f"{', '.join(_timesteps(r[0].timestep, r[-1].timestep, len(r)) for r in runs)}); "
+            "add the missing dump files"
+        )
+    if check_parts is not None:
+        check_parts(len(kept))
+    parts = _trajectories(
+        found,
+        kept,
+        [f for r in runs for f in r],
+        dumps=dumps,
+        stl_files=stl_files,
+        gravity=gravity,
+        outflow_z=outflow_z,
+        mesh_dumps=mesh_dumps,
+        mesh_pattern=mesh_pattern,
+        kind=kind,
+        units=units,
+        split=True,
+    )
+    return DumpParts(parts, skipped)
+
+
+@dataclass
+class _Sources:
+    """walls.yaml, the run's script and the DEM time step, with where each value came from."""
+
+    config: WallsConfig | None
+    script: RunScript | None
+    dt: float
+    dt_from: str
+    sources: dict[str, str]
+
+
+def _read_sources(
+    dem_dt: float | None,
+    walls: PathLike | WallsConfig | None,
+    input_script: PathLike | None,
+    log: PathLike | None,
+) -> _Sources:
     if input_script is not None and log is not None:
         raise InputError("pass either the input script (--input) or the log (--log), not both")
     config = walls if isinstance(walls, WallsConfig) or walls is None else read_walls_config(walls)
@@ -126,7 +294,6 @@ def trajectory_from_dumps(
     script = None
     if script_path is not None:
         script = read_run_script(script_path, is_log=log is not None)
-    sources: dict[str, str] = {}
 
     script_dt = None
     if script is not None and not (dem_dt is not None and "timestep" in script.problems):
@@ -139,56 +306,62 @@ def trajectory_from_dumps(
         )
     if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
         raise InputError(f"dem_dt: expected the run's positive DEM time step (s), got {dt!r}")
-    sources["dem_dt"] = dt_from
+    return _Sources(config, script, dt, dt_from, {"dem_dt": dt_from})
 
-    frames = read_dumps(dumps, on_truncated=on_truncated, pattern=pattern)
-    check_frames_finite(frames)
-    arrays = frames_to_arrays(frames, dt)
-    first_timestep = arrays.pop("first_timestep")
-    timesteps = np.array([f.timestep for f in frames], np.int64)
-    check_dem_dt(arrays["positions"], arrays["velocities"], timesteps, dt, dt_from)
 
+def _trajectories(
+    found: _Sources,
+    runs: list[list[DumpFrame]],
+    all_frames: list[DumpFrame],
+    *,
+    dumps: PathLike | Sequence[PathLike],
+    stl_files: Sequence[PathLike],
+    gravity: tuple[float, float, float] | None,
+    outflow_z: float | None,
+    mesh_dumps: Sequence[PathLike],
+    mesh_pattern: str,
+    kind: str | None,
+    units: str | None,
+    split: bool = False,
+) -> list[Trajectory]:
+    """One trajectory per run of evenly spaced frames; ``all_frames`` are every frame read
+    (the runs and any skipped ones), for the walls' time origin and the particle types."""
+    config, script, dt = found.config, found.script, found.dt
+    sources = dict(found.sources)
+    check_frames_finite(all_frames)
     outflow, outflow_from = _pick(
         "outflow height",
         [(outflow_z, "--outflow-z"), _from_config(config, "outflow_z")],
     )
-    box = _box(frames)
-    left = 0
     if outflow is not None:
-        if not (math.isfinite(outflow) and outflow < box[2, 1]):
-            raise InputError(
-                f"outflow_z: {outflow} ({outflow_from}) must be finite and below the box top "
-                f"({box[2, 1]} m) of the dumps"
-            )
-        left = apply_outflow(arrays["positions"], arrays["velocities"], outflow)
         sources["outflow_z"] = outflow_from
-    check_no_reappearance(arrays["positions"], arrays["ids"], timesteps)
-    keep = np.isfinite(arrays["positions"][..., 0]).any(axis=0)
-    never = int((~keep).sum())
-    if never:
-        for key in ("positions", "velocities"):
-            arrays[key] = arrays[key][:, keep]
-        for key in ("radii", "ids"):
-            arrays[key] = arrays[key][keep]
+    particles = [_particles(frames, dt, found.dt_from, outflow, outflow_from) for frames in runs]
 
-    duration = float(arrays["times"][-1])
+    origin = all_frames[0].timestep  # recorded time 0 of walls.yaml and the walls
+    span = float((all_frames[-1].timestep - origin) * dt) if split else particles[0].duration
     mesh_frames = read_mesh_dumps(mesh_dumps, mesh_pattern) if mesh_dumps else []
     imported = import_walls(
         stl_files,
         dt,
-        first_timestep,
+        origin,
         config=config,
         script=script,
         mesh_frames=mesh_frames,
         units=units,
-        duration=duration,
+        duration=span,
     )
-    radius = float(np.max(arrays["radii"])) if len(arrays["radii"]) else 0.0
-    check_wall_units(
-        [(w.wall.name, w.wall.vertices, str(w.stl), w.units) for w in imported],
-        arrays["positions"],
-        radius,
-    )
+
+    offsets = [float((frames[0].timestep - origin) * dt) for frames in runs]
+    part_walls = []
+    for offset, part in zip(offsets, particles, strict=True):
+        walls = [(w, _rebased(w, offset, dt)) for w in imported]
+        walls = [(w, wall) for w, wall in walls if wall is not None]
+        check_wall_units(
+            [(wall.name, wall.vertices, str(w.stl), w.units) for w, wall in walls],
+            part.arrays["positions"],
+            part.radius,
+        )
+        part_walls.append(walls)
 
     g, g_from = _pick(
         "gravity",
@@ -201,7 +374,7 @@ def trajectory_from_dumps(
     if g is None and script is not None and "gravity" in script.problems:
         raise InputError(script.problems["gravity"])
     sources["gravity"] = g_from or "default"
-    materials, material_sources = _materials(config, script, frames)
+    materials, material_sources = _materials(config, script, all_frames)
     sources |= {f"materials.{k}": v for k, v in material_sources.items()}
     scene_kind, kind_from = _pick("kind", [(kind, "--kind"), _from_config(config, "kind")])
     sources["kind"] = kind_from or "default"
@@ -210,57 +383,165 @@ def trajectory_from_dumps(
     scene_kind = scene_kind or "other"
     name = config.name if config is not None and config.name else None
     name = name or (scene_kind if scene_kind in ("hopper", "drum") else "imported")
-
-    first = frames[0]
-    xyz = first.data[:, [first.columns.index(c) for c in ("x", "y", "z")]]
-    if len(xyz):
-        fill_lo, fill_hi = xyz.min(axis=0), xyz.max(axis=0)
-    else:
-        fill_lo, fill_hi = first.box[:, 0], first.box[:, 1]
-    domain_lo, domain_hi = box[:, 0].copy(), box[:, 1].copy()
-    if outflow is not None:
-        domain_lo[2] = float(outflow)
-    steps = np.diff(timesteps)
-    frame_steps = int(steps[0]) if len(steps) else 1
-    scene = Scene(
-        name=name,
-        kind=scene_kind,
-        walls=[w.wall for w in imported],
-        particles=ParticleSpec(
-            count=len(arrays["ids"]),
-            radius=radius,
-            fill_lo=_floats(fill_lo),
-            fill_hi=_floats(fill_hi),
-        ),
-        materials=materials,
-        gravity=_floats(g if g is not None else DEFAULT_GRAVITY),
-        domain_lo=_floats(domain_lo),
-        domain_hi=_floats(domain_hi),
-        outflow_z=None if outflow is None else float(outflow),
-        dem_dt=float(dt),
-        settle_time=0.0,
-        duration=duration,
-        frame_dt=frame_steps * float(dt),
-    )
     dump_paths = [dumps] if isinstance(dumps, (str, os.PathLike)) else list(dumps)
-    metadata: dict[str, Any] = {
-        "source": "imported",
-        "dumps": [str(p) for p in dump_paths],
-        "stl_files": [str(w.stl) for w in imported],
-        "first_timestep": first_timestep,
-        "walls": [w.report() for w in imported],
-        "sources": sources,
-        "left_through_outflow": left,
-        "never_present": never,
-    }
-    for key, value in (("walls_yaml", config), ("script", script), ("mesh_dumps", mesh_dumps)):
-        if value:
-            metadata[key] = (
-                [str(p) for p in value]
-                if isinstance(value, (list, tuple))
-                else str(getattr(value, "path", value))
+
+    out = []
+    for k, (frames, part, walls) in enumerate(zip(runs, particles, part_walls, strict=True)):
+        offset = offsets[k]
+        arrays = part.arrays
+        radius = part.radius
+        first = frames[0]
+        xyz = first.data[:, [first.columns.index(c) for c in ("x", "y", "z")]]
+        if len(xyz):
+            fill_lo, fill_hi = xyz.min(axis=0), xyz.max(axis=0)
+        else:
+            fill_lo, fill_hi = first.box[:, 0], first.box[:, 1]
+        domain_lo, domain_hi = part.box[:, 0].copy(), part.box[:, 1].copy()
+        if outflow is not None:
+            domain_lo[2] = float(outflow)
+        steps = np.diff(part.timesteps)
+        frame_steps = int(steps[0]) if len(steps) else 1
+        scene = Scene(
+            name=name,
+            kind=scene_kind,
+            walls=[wall for _, wall in walls],
+            particles=ParticleSpec(
+                count=len(arrays["ids"]),
+                radius=radius,
+                fill_lo=_floats(fill_lo),
+                fill_hi=_floats(fill_hi),
+            ),
+            materials=materials,
+            gravity=_floats(g if g is not None else DEFAULT_GRAVITY),
+            domain_lo=_floats(domain_lo),
+            domain_hi=_floats(domain_hi),
+            outflow_z=None if outflow is None else float(outflow),
+            dem_dt=float(dt),
+            settle_time=0.0,
+            duration=part.duration,
+            frame_dt=frame_steps * float(dt),
+        )
+        metadata: dict[str, Any] = {
+            "source": "imported",
+            "dumps": [str(p) for p in dump_paths],
+            "stl_files": [str(w.stl) for w, _ in walls],
+            "first_timestep": part.first_timestep,
+            "walls": [w.report() for w, _ in walls],
+            "sources": sources,
+            "left_through_outflow": part.left,
+            "never_present": part.never,
+        }
+        for key, value in (("walls_yaml", config), ("script", script), ("mesh_dumps", mesh_dumps)):
+            if value:
+                metadata[key] = (
+                    [str(p) for p in value]
+                    if isinstance(value, (list, tuple))
+                    else str(getattr(value, "path", value))
+                )
+        if split:
+            metadata["split"] = {
+                "part": k,
+                "parts": len(runs),
+                "timesteps": [int(frames[0].timestep), int(frames[-1].timestep)],
+                "offset": offset,
+            }
+        out.append(Trajectory(**arrays, scene=scene, metadata=metadata))
+    return out
+
+
+@dataclass
+class _Particles:
+    """The particle arrays of one run of frames, after outflow, and what was dropped."""
+
+    arrays: dict[str, Any]
+    first_timestep: int
+    timesteps: np.ndarray
+    box: np.ndarray
+    duration: float
+    radius: float
+    left: int
+    never: int
+
+
+def _particles(
+    frames: list[DumpFrame],
+    dt: float,
+    dt_from: str,
+    outflow: float | None,
+    outflow_from: str | None,
+) -> _Particles:
+    arrays = frames_to_arrays(frames, dt)
+    first_timestep = arrays.pop("first_timestep")
+    timesteps = np.array([f.timestep for f in frames], np.int64)
+    check_dem_dt(arrays["positions"], arrays["velocities"], timesteps, dt, dt_from)
+    box = _box(frames)
+    left = 0
+    if outflow is not None:
+        if not (math.isfinite(outflow) and outflow < box[2, 1]):
+            raise InputError(
+                f"outflow_z: {outflow} ({outflow_from}) must be finite and below the box top "
+                f"({box[2, 1]} m) of the dumps"
             )
-    return Trajectory(**arrays, scene=scene, metadata=metadata)
+        left = apply_outflow(arrays["positions"], arrays["velocities"], outflow)
+    check_no_reappearance(arrays["positions"], arrays["ids"], timesteps)
+    keep = np.isfinite(arrays["positions"][..., 0]).any(axis=0)
+    never = int((~keep).sum())
+    if never:
+        for key in ("positions", "velocities"):
+            arrays[key] = arrays[key][:, keep]
+        for key in ("radii", "ids"):
+            arrays[key] = arrays[key][keep]
+    duration = float(arrays["times"][-1])
+    radius = float(np.max(arrays["radii"])) if len(arrays["radii"]) else 0.0
+    return _Particles(arrays, first_timestep, timesteps, box, duration, radius, left, never)
+
+
+def _rebased(imported: ImportedWall, offset: float, dt: float) -> Wall | None:
+    """The wall (recorded time of the whole run) as a Scene wall whose recorded time 0 is
+    ``offset`` (s): posed at ``offset``, its motion and removal ``offset`` earlier; None when it
+    is removed by then."""
+    wall = imported.wall
+    if offset == 0:
+        return wall
+    removal = None
+    if wall.removal_time is not None:
+        removal = _since(wall.removal_time, offset, dt)
+        if removal <= 0:
+            return None
+    m = wall.motion
+    vertices = wall.vertices_at(offset)
+    stop = None if m.stop_time is None else _since(m.stop_time, offset, dt)
+    if m.kind == "static" or (stop is not None and stop <= 0):
+        motion = WallMotion("static")
+    else:
+        start = _since(m.start_time, offset, dt)
+        if m.kind == "oscillation" and start < 0:
+            cycles = -start / m.period
+            if abs(cycles - round(cycles)) > 1e-9:
+                raise InputError(
+                    f"wall {wall.name} ({imported.stl}): its oscillation ({imported.motion_from}) "
+                    f"has run {cycles:.6g} periods by the part that starts at t = {offset:.6g} s, "
+                    "not a whole number: a WallMotion starts its sine at its start time; convert "
+                    "without --split-gaps"
+                )
+            vertices = wall.vertices  # whole periods: back at the mesh pose
+        motion = dataclasses.replace(m, start_time=max(0.0, start), stop_time=stop)
+    return Wall(wall.name, vertices, wall.faces, motion, removal)
+
+
+def _since(t: float, offset: float, dt: float) -> float:
+    """``t - offset`` (s), snapped to a whole number of DEM steps when within round-off of
+    one."""
+    x = t - offset
+    steps = x / dt
+    return round(steps) * dt if abs(steps - round(steps)) < 1e-6 else x
+
+
+def _timesteps(first: int, last: int, frames: int) -> str:
+    """``"TIMESTEPs 700..800 (2 frames)"``, or ``"TIMESTEP 700 (1 frame)"``."""
+    if frames == 1:
+        return f"TIMESTEP {first} (1 frame)"
+    return f"TIMESTEPs {first}..{last} ({frames} frames)"
 
 
 def _pick(what: str, given: list[tuple[Any, str] | None]) -> tuple[Any, str | None]:
@@ -326,8 +607,9 @@ def _materials(
 
 
 @reports_errors
-def main(argv: Sequence[str] | None = None) -> Path:
-    """Command line: convert dumps + walls into one HDF5 trajectory; see the module doc."""
+def main(argv: Sequence[str] | None = None) -> Path | list[Path]:
+    """Command line: convert dumps + walls into one HDF5 trajectory (with ``--split-gaps``,
+    one per run of evenly spaced frames); see the module doc. Returns the file(s) written."""
     parser = argparse.ArgumentParser(
         prog="python -m granular_pyg.dem.convert",
         description="Convert LIGGGHTS dump custom files and STL walls into a trajectory file.",
@@ -355,6 +637,12 @@ def main(argv: Sequence[str] | None = None) -> Path:
     parser.add_argument("--mesh-pattern", default="*", help="file-name glob in a mesh folder")
     parser.add_argument("--kind", choices=SCENE_KINDS, default=None, help="scene kind")
     parser.add_argument("--units", choices=tuple(UNITS), default=None, help="STL units")
+    parser.add_argument(
+        "--split-gaps",
+        action="store_true",
+        help="instead of refusing a missing frame, write each run of evenly spaced frames as its "
+        "own trajectory: --out run.h5 -> run_part0.h5, run_part1.h5, ...",
+    )
     args = parser.parse_args(argv)
 
     config = read_walls_config(args.walls) if args.walls is not None else None
@@ -372,25 +660,25 @@ def main(argv: Sequence[str] | None = None) -> Path:
         script_path,
         *args.mesh_dumps,
     ]
+    common: dict[str, Any] = {
+        "gravity": None if args.gravity is None else tuple(args.gravity),
+        "outflow_z": args.outflow_z,
+        "on_truncated": args.on_truncated,
+        "pattern": args.pattern,
+        "walls": config,
+        "input_script": args.input,
+        "log": args.log,
+        "mesh_dumps": args.mesh_dumps,
+        "mesh_pattern": args.mesh_pattern,
+        "kind": args.kind,
+        "units": args.units,
+    }
+    if args.split_gaps:
+        return _split_main(args, inputs, common)
     out = check_output(
         args.out, inputs, args.overwrite, option="--out", overwrite_option="--overwrite"
     )
-    traj = trajectory_from_dumps(
-        args.dumps,
-        args.stl,
-        args.dem_dt,
-        gravity=None if args.gravity is None else tuple(args.gravity),
-        outflow_z=args.outflow_z,
-        on_truncated=args.on_truncated,
-        pattern=args.pattern,
-        walls=config,
-        input_script=args.input,
-        log=args.log,
-        mesh_dumps=args.mesh_dumps,
-        mesh_pattern=args.mesh_pattern,
-        kind=args.kind,
-        units=args.units,
-    )
+    traj = trajectory_from_dumps(args.dumps, args.stl, args.dem_dt, **common)
     write_trajectory(traj, out)
     walls = ", ".join(_describe(w) for w in traj.scene.walls)
     print(
@@ -399,6 +687,68 @@ def main(argv: Sequence[str] | None = None) -> Path:
         f"kind {traj.scene.kind}, walls: {walls or 'none'}"
     )
     return out
+
+
+def part_path(out: PathLike, k: int) -> Path:
+    """The file of part ``k`` of ``--out`` with ``--split-gaps``: ``run.h5`` ->
+    ``run_part<k>.h5``."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}_part{k}{out.suffix}")
+
+
+def _split_main(args: argparse.Namespace, inputs: list, common: dict[str, Any]) -> list[Path]:
+    """``--split-gaps``: every part's file checked (none an input, none existing without
+    --overwrite) once the dumps are read and before any part is built; each written
+    atomically."""
+    check = {"option": "--out", "overwrite_option": "--overwrite"}
+    check_output(args.out, inputs, True, **check)  # its folder, before the dumps are read
+    outs: list[Path] = []
+
+    def check_parts(count: int) -> None:
+        outs[:] = [
+            check_output(part_path(args.out, k), inputs, args.overwrite, **check)
+            for k in range(count)
+        ]
+
+    result = trajectories_from_dumps(
+        args.dumps, args.stl, args.dem_dt, **common, check_parts=check_parts
+    )
+    if result.skipped:
+        runs = ", ".join(_timesteps(*run) for run in result.skipped)
+        print(
+            f"warning: --split-gaps: skipped {len(result.skipped)} run(s) of evenly spaced "
+            f"frames shorter than {MIN_PART_FRAMES} frames: {runs}",
+            file=sys.stderr,
+        )
+    short = [
+        f"{out} ({traj.num_frames} frames)"
+        for out, traj in zip(outs, result.parts, strict=True)
+        if traj.num_frames < ROLLOUT_FRAMES
+    ]
+    if short:
+        print(
+            f"warning: --split-gaps: {', '.join(short)}: fewer than the {ROLLOUT_FRAMES} frames "
+            "(H + 1) a rollout starts from; written as data, too short to roll out from",
+            file=sys.stderr,
+        )
+    for out, traj in zip(outs, result.parts, strict=True):
+        write_trajectory(traj, out)
+    described = [", ".join(_describe(w) for w in t.scene.walls) or "none" for t in result.parts]
+    same_walls = len(set(described)) == 1
+    parts = []
+    for out, traj, walls in zip(outs, result.parts, described, strict=True):
+        first, last = traj.metadata["split"]["timesteps"]
+        parts.append(
+            f"{out}: {traj.num_frames} frames x {traj.num_particles} particles, "
+            f"TIMESTEPs {first}..{last}, frame_dt {traj.scene.frame_dt:.6g} s, "
+            f"duration {traj.scene.duration:.6g} s" + ("" if same_walls else f", walls: {walls}")
+        )
+    kind = result.parts[0].scene.kind
+    print(
+        f"wrote {len(outs)} part(s): {'; '.join(parts)}; kind {kind}"
+        + (f", walls: {described[0]}" if same_walls else "")
+    )
+    return outs
 
 
 def _describe(wall) -> str:

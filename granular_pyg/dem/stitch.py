@@ -9,11 +9,14 @@ order:
   refused when they differ (two different runs were mixed);
 * the frames must then be evenly spaced: a missing frame (a gap) or an odd spacing is refused
   with a message naming the TIMESTEPs around it, so uneven frame spacing is never produced
-  silently.
+  silently (:func:`read_dumps`);
+* or, asked for (``convert --split-gaps``), the frames are cut into runs of evenly spaced frames
+  (:func:`read_dump_runs`, :func:`evenly_spaced_runs`), each of which becomes a trajectory.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
 from collections import Counter
 from collections.abc import Sequence
@@ -24,7 +27,7 @@ import numpy as np
 from granular_pyg.dem.dump import REQUIRED_COLUMNS, DumpFrame, read_dump
 from granular_pyg.errors import InputError
 
-__all__ = ["dump_files", "frame_spacing", "read_dumps"]
+__all__ = ["dump_files", "evenly_spaced_runs", "frame_spacing", "read_dump_runs", "read_dumps"]
 
 
 def dump_files(
@@ -90,6 +93,62 @@ def read_dumps(
             frames that are not evenly spaced (a missing frame); the message names the files
             and TIMESTEPs.
     """
+    merged = _stitched(paths, on_truncated, pattern)
+    frame_spacing(merged)
+    return merged
+
+
+def read_dump_runs(
+    paths: Sequence[str | os.PathLike] | str | os.PathLike,
+    on_truncated: str = "warn",
+    pattern: str = "*",
+) -> list[list[DumpFrame]]:
+    """Read and stitch every frame like :func:`read_dumps`, but cut the frames into runs of
+    evenly spaced frames (:func:`evenly_spaced_runs`) instead of refusing a gap.
+
+    Returns:
+        The runs in TIMESTEP order (one run when the frames are evenly spaced).
+
+    Raises:
+        FileNotFoundError: a path does not exist.
+        InputError: a malformed file, or a TIMESTEP written twice with different contents.
+    """
+    return evenly_spaced_runs(_stitched(paths, on_truncated, pattern))
+
+
+def evenly_spaced_runs(frames: Sequence[DumpFrame]) -> list[list[DumpFrame]]:
+    """Cut ``frames`` (strictly increasing TIMESTEPs) into runs of evenly spaced frames.
+
+    Runs are taken from the first frame on, each as long as the spacing of its first step
+    lasts; a missing frame or a change of spacing ends it. A frame that would end a two-frame
+    run while it starts a run of three or more frames of another spacing goes to that longer
+    run (``700, 1000, 1100, 1200`` -> ``[700], [1000, 1100, 1200]``).
+
+    Returns:
+        The runs, in order; together they hold every frame once. A single frame is a run of 1.
+    """
+    steps = [b.timestep - a.timestep for a, b in itertools.pairwise(frames)]
+    runs: list[list[DumpFrame]] = []
+    start = 0
+    while start < len(frames):
+        end = start + 1  # the run is frames[start:end]
+        if end < len(frames):
+            spacing = steps[start]
+            end += 1
+            while end < len(frames) and steps[end - 1] == spacing:
+                end += 1
+            # frames[end - 1] ends a two-frame run but starts a longer one: it goes there
+            if end - start == 2 and end + 1 < len(frames) and steps[end - 1] == steps[end]:
+                end -= 1
+        runs.append(list(frames[start:end]))
+        start = end
+    return runs
+
+
+def _stitched(
+    paths: Sequence[str | os.PathLike] | str | os.PathLike, on_truncated: str, pattern: str
+) -> list[DumpFrame]:
+    """Every frame of the dump files in TIMESTEP order, a TIMESTEP written twice kept once."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     frames: list[DumpFrame] = []
@@ -102,7 +161,6 @@ def read_dumps(
             _check_same(merged[-1], frame)
             continue
         merged.append(frame)
-    frame_spacing(merged)
     return merged
 
 
@@ -135,8 +193,8 @@ def frame_spacing(frames: Sequence[DumpFrame]) -> int:
     more = f" (and {len(odd) - 3} more)" if len(odd) > 3 else ""
     raise InputError(
         f"dumps: frames must be evenly spaced, every {regular} steps, but "
-        f"{'; '.join(parts)}{more}; add the missing dump files, or convert each evenly spaced "
-        "part on its own"
+        f"{'; '.join(parts)}{more}; add the missing dump files, or pass --split-gaps to write "
+        "each evenly spaced run as its own trajectory"
     )
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import subprocess
 import sys
 
@@ -10,9 +11,11 @@ import pytest
 import trimesh
 
 from granular_pyg.dem import convert
-from granular_pyg.dem.convert import load_stl_wall, trajectory_from_dumps
+from granular_pyg.dem.convert import load_stl_wall, trajectories_from_dumps, trajectory_from_dumps
 from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory
+from granular_pyg.scenes.scene import WallMotion
+from tests.dem.dump_text import falling, plate, write_dump, write_mesh_dump, write_stl
 
 DUMP = """\
 ITEM: TIMESTEP
@@ -247,3 +250,168 @@ def test_python_dash_m_entry_point_runs(run, tmp_path):
     command = [sys.executable, "-m", "granular_pyg.dem.convert", *args]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     assert (result.returncode, read_trajectory(out).num_frames) == (0, 2), result.stderr
+
+
+# --- --split-gaps: one trajectory per evenly spaced run ---------------------------------------
+
+GAP_DT = 2e-5
+
+
+@pytest.fixture
+def gap_run(tmp_path):
+    """A dump folder, one file per frame, TIMESTEPs 0..500 and 700..1000 every 100 (600 is
+    missing), of 4 particles in free fall; and the frames as written."""
+    folder = tmp_path / "dumps"
+    folder.mkdir()
+    frames = falling([*range(0, 600, 100), *range(700, 1100, 100)], n=4, dem_dt=GAP_DT)
+    for frame in frames:
+        write_dump(folder / f"dump{frame[0]}.liggghts", [frame])
+    return folder, frames
+
+
+def _sha256(folder):
+    """SHA-256 of every file in ``folder`` (not in its subfolders), by name."""
+    files = sorted(p for p in folder.iterdir() if p.is_file())
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in files}
+
+
+def _convert(folder, out, *extra):
+    return convert.main([str(folder), "--dem-dt", str(GAP_DT), "--out", str(out), *extra])
+
+
+def test_a_gap_is_refused_without_split_gaps_naming_the_timesteps_and_the_option(
+    gap_run, tmp_path, capsys
+):
+    folder, _ = gap_run
+    with pytest.raises(SystemExit) as exit_info:
+        _convert(folder, tmp_path / "run.h5")
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert "TIMESTEP 500" in err and "-> 700" in err and "1 frame(s) missing" in err
+    assert "--split-gaps" in err
+    assert not (tmp_path / "run.h5").exists()
+
+
+def test_split_gaps_writes_one_trajectory_per_run_with_the_dump_positions(gap_run, tmp_path):
+    folder, frames = gap_run
+    before = _sha256(folder)
+    outs = _convert(folder, tmp_path / "run.h5", "--split-gaps")
+    assert outs == [tmp_path / "run_part0.h5", tmp_path / "run_part1.h5"]
+    assert not (tmp_path / "run.h5").exists()
+    for out, written in zip(outs, (frames[:6], frames[6:]), strict=True):
+        traj = read_trajectory(out)
+        first = written[0][0]
+        assert traj.ids.tolist() == [1, 2, 3, 4]
+        assert traj.metadata["first_timestep"] == first
+        assert traj.metadata["split"]["timesteps"] == [first, written[-1][0]]
+        expected = np.stack([p for _, _, p, _ in written]).astype(np.float32)
+        assert np.array_equal(traj.positions, expected)
+        assert traj.times.tolist() == [(s - first) * GAP_DT for s, *_ in written]
+        assert traj.scene.frame_dt == pytest.approx(100 * GAP_DT)
+    assert _sha256(folder) == before
+
+
+def test_split_gaps_summary_lists_every_part_and_warns_about_short_parts(gap_run, tmp_path, capsys):
+    folder, _ = gap_run
+    _convert(folder, tmp_path / "run.h5", "--split-gaps")
+    captured = capsys.readouterr()
+    assert captured.out.count("\n") == 1
+    assert "wrote 2 part(s)" in captured.out
+    assert f"{tmp_path / 'run_part0.h5'}: 6 frames x 4 particles, TIMESTEPs 0..500" in captured.out
+    assert f"{tmp_path / 'run_part1.h5'}: 4 frames x 4 particles, TIMESTEPs 700..1000" in (
+        captured.out
+    )
+    warnings = [line for line in captured.err.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1
+    assert "run_part1.h5 (4 frames)" in warnings[0] and "run_part0" not in warnings[0]
+
+
+def test_split_gaps_skips_runs_shorter_than_three_frames_with_one_warning(tmp_path, capsys):
+    steps = [*range(0, 600, 100), 700, 800, *range(1000, 1300, 100)]
+    dump = write_dump(tmp_path / "run.dump", falling(steps, n=3, dem_dt=GAP_DT))
+    outs = _convert(dump, tmp_path / "out" / "run.h5", "--split-gaps")
+    err = capsys.readouterr().err
+    assert [read_trajectory(out).metadata["first_timestep"] for out in outs] == [0, 1000]
+    skipped = [line for line in err.splitlines() if "skipped" in line]
+    assert skipped == [
+        "warning: --split-gaps: skipped 1 run(s) of evenly spaced frames shorter than 3 "
+        "frames: TIMESTEPs 700..800 (2 frames)"
+    ]
+    assert not (tmp_path / "out" / "run_part2.h5").exists()
+
+
+def test_split_gaps_refuses_an_existing_part_without_overwrite(gap_run, tmp_path, capsys):
+    folder, _ = gap_run
+    outs = _convert(folder, tmp_path / "run.h5", "--split-gaps")
+    written = _sha256(tmp_path)
+    with pytest.raises(SystemExit) as exit_info:
+        _convert(folder, tmp_path / "run.h5", "--split-gaps")
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert f"{outs[0]} exists" in err and "--overwrite" in err
+    assert _sha256(tmp_path) == written
+    assert _convert(folder, tmp_path / "run.h5", "--split-gaps", "--overwrite") == outs
+
+
+def test_split_gaps_never_writes_a_part_into_an_input_folder(gap_run, capsys):
+    folder, _ = gap_run
+    before = _sha256(folder)
+    with pytest.raises(SystemExit):
+        _convert(folder, folder / "run.h5", "--split-gaps")
+    assert "is the input" in capsys.readouterr().err
+    assert _sha256(folder) == before
+
+
+def test_split_gaps_rebases_the_walls_on_each_part(gap_run, tmp_path):
+    folder, _ = gap_run
+    write_stl(tmp_path / "turntable.stl", plate(0.0))
+    write_stl(tmp_path / "lid.stl", plate(0.18))
+    walls = tmp_path / "walls.yaml"
+    walls.write_text(
+        "walls:\n"
+        "  turntable.stl:\n"
+        "    motion: {kind: rotation, axis: [0, 0, 1], omega: 2.0}\n"
+        "  lid.stl:\n"
+        "    removal_time: 0.012\n"  # TIMESTEP 600, in the gap
+    )
+    result = trajectories_from_dumps(folder, dem_dt=GAP_DT, walls=walls)
+    first, second = (t.scene for t in result.parts)
+    assert [w.name for w in first.walls] == ["turntable", "lid"]
+    assert first.walls[1].removal_time == pytest.approx(0.012)
+    assert [w.name for w in second.walls] == ["turntable"]
+    offset = 700 * GAP_DT
+    rot, shift = WallMotion("rotation", axis=(0, 0, 1), omega=2.0).pose(offset)
+    np.testing.assert_allclose(second.walls[0].triangles, plate(0.0).triangles @ rot.T + shift)
+    assert (second.walls[0].motion.kind, second.walls[0].motion.start_time) == ("rotation", 0.0)
+    assert result.parts[1].metadata["split"]["offset"] == pytest.approx(offset)
+    assert result.skipped == []
+
+
+def test_split_gaps_takes_each_parts_walls_from_the_mesh_dumps(tmp_path):
+    """Particle frames every 125 steps with 625 and 750 missing; mesh dumps every 125 steps of
+    a spinning box and a plate gone from TIMESTEP 750 (in the gap)."""
+    box_mesh = trimesh.creation.box(extents=(0.06, 0.03, 0.04))
+    plate_mesh = plate(z=-0.03)
+    spin = WallMotion("rotation", axis=(0, 0, 1), origin=(0.005, 0.0, 0.0), omega=3.0)
+    steps = [*range(0, 625, 125), *range(875, 1375, 125)]
+    dump = write_dump(tmp_path / "dump.liggghts", falling(steps, dem_dt=GAP_DT))
+    meshes = tmp_path / "mesh"
+    meshes.mkdir()
+    for step in range(0, 1375, 125):
+        rot, shift = spin.pose(step * GAP_DT)
+        tris = [box_mesh.triangles @ rot.T + shift] + ([plate_mesh.triangles] if step < 750 else [])
+        write_mesh_dump(meshes / f"mesh{step}.stl", np.concatenate(tris))
+    stls = [
+        write_stl(tmp_path / "box.stl", box_mesh),
+        write_stl(tmp_path / "plate.stl", plate_mesh),
+    ]
+    result = trajectories_from_dumps(dump, stls, dem_dt=GAP_DT, mesh_dumps=[meshes])
+    first, second = (t.scene for t in result.parts)
+    assert [w.name for w in first.walls] == ["box", "plate"]
+    assert first.walls[1].removal_time == pytest.approx(750 * GAP_DT, abs=1e-15)
+    assert [w.name for w in second.walls] == ["box"]
+    box = second.walls[0]
+    assert (box.motion.kind, box.motion.start_time) == ("rotation", 0.0)
+    for t in (0.0, 0.005):
+        rot, shift = spin.pose(t + 875 * GAP_DT)
+        np.testing.assert_allclose(box.vertices_at(t), box_mesh.vertices @ rot.T + shift, atol=2e-6)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import pytest
 
-from granular_pyg.dem.stitch import read_dumps
+from granular_pyg.dem.stitch import evenly_spaced_runs, read_dump_runs, read_dumps
 from granular_pyg.errors import InputError
 from tests.dem.dump_text import falling, write_dump
 
@@ -62,3 +64,37 @@ def test_files_and_folders_mix(tmp_path):
     fill = write_dump(tmp_path / "fill.dump", falling(range(0, 600, 100)))
     frames = read_dumps([fill, folder], pattern="dump*.liggghts")
     assert [f.timestep for f in frames] == list(range(0, 800, 100))
+
+
+def test_a_gap_refusal_names_the_split_gaps_option(tmp_path):
+    fill, discharge = _parts(tmp_path, range(0, 500, 100), range(700, 900, 100))
+    with pytest.raises(InputError, match=r"or pass --split-gaps to write each evenly spaced run"):
+        read_dumps([fill, discharge])
+
+
+def test_read_dump_runs_cuts_at_the_gap(tmp_path):
+    fill, discharge = _parts(tmp_path, range(0, 500, 100), range(700, 900, 100))
+    runs = read_dump_runs([discharge, fill])
+    assert [[f.timestep for f in run] for run in runs] == [[0, 100, 200, 300, 400], [700, 800]]
+
+
+def _steps(*timesteps):
+    return [SimpleNamespace(timestep=t) for t in timesteps]
+
+
+@pytest.mark.parametrize(
+    ("timesteps", "expected"),
+    [
+        ((0, 100, 200), [[0, 100, 200]]),
+        ((0, 100, 200, 500, 600), [[0, 100, 200], [500, 600]]),
+        ((0, 100, 200, 250, 350, 450), [[0, 100, 200], [250, 350, 450]]),
+        ((0, 1000, 2000, 2125, 2250, 2375), [[0, 1000, 2000], [2125, 2250, 2375]]),
+        ((700, 1000, 1100, 1200), [[700], [1000, 1100, 1200]]),
+        ((0, 100, 300, 400, 600, 700), [[0, 100], [300, 400], [600, 700]]),
+        ((5,), [[5]]),
+        ((), []),
+    ],
+)
+def test_evenly_spaced_runs(timesteps, expected):
+    runs = evenly_spaced_runs(_steps(*timesteps))
+    assert [[f.timestep for f in run] for run in runs] == expected
