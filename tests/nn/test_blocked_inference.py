@@ -42,7 +42,8 @@ def test_blocked_inference_equals_the_plain_path(monkeypatch, layer, aggr):
         plain = model(x, edge_index, edge_attr)  # 333 rows <= 4,096: one block
         monkeypatch.setattr(mlp_module, "ROW_CHUNK", 10)  # 34 blocks of edges, 4 of nodes
         blocked = model(x, edge_index, edge_attr)
-    torch.testing.assert_close(blocked, plain, rtol=1e-6, atol=1e-7)
+    # float32 round-off: a matrix product over fewer rows may take another kernel
+    torch.testing.assert_close(blocked, plain, rtol=1e-5, atol=1e-6)
 
 
 def test_training_keeps_the_plain_path_and_its_gradients(monkeypatch):
@@ -68,4 +69,4 @@ def test_an_mlp_over_many_rows_in_inference_equals_row_by_row_blocks(monkeypatch
     with torch.no_grad():
         plain = torch.nn.Sequential.forward(mlp, x)
         monkeypatch.setattr(mlp_module, "ROW_CHUNK", 4)
-        torch.testing.assert_close(mlp(x), plain, rtol=1e-6, atol=1e-7)
+        torch.testing.assert_close(mlp(x), plain, rtol=1e-5, atol=1e-6)
