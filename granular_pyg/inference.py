@@ -29,11 +29,55 @@ from granular_pyg.simulator import LearnedSimulator, ParticleProps, WallGuard
 __all__ = [
     "initial_frames",
     "load_simulator",
+    "load_weights",
     "matching_frames",
+    "read_checkpoint",
     "rollout_trajectory",
     "time_step_multiple",
     "warn_outside_training",
 ]
+
+
+def read_checkpoint(
+    path: str | Path, name: str = "ckpt", map_location: str = "cpu"
+) -> tuple[Path, dict]:
+    """The file and contents of checkpoint ``path`` (a file or ``pretrained:<name>``).
+
+    Raises:
+        InputError: naming the option ``name``: no such file, or not a readable checkpoint.
+    """
+    path = resolve_checkpoint(path)
+    if not path.is_file():
+        raise InputError(
+            f"{name}: no checkpoint at {path}; pass a file from <run>/checkpoints/ or "
+            "pretrained:hopper / pretrained:drum"
+        )
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as exc:  # torch raises several types for corrupt files
+        raise InputError(
+            f"{name}: {path} is not a readable checkpoint ({exc}); was it truncated?"
+        ) from exc
+    if not isinstance(ckpt, dict):
+        raise InputError(f"{name}: {path} is not a granular_pyg training checkpoint")
+    return path, ckpt
+
+
+def load_weights(sim: LearnedSimulator, ckpt: dict, source: str) -> None:
+    """Load the ``sim.*`` weights and buffers (normalisation, ``dt``) of training checkpoint
+    ``ckpt`` into ``sim``.
+
+    Raises:
+        InputError: naming ``source``: the weights do not fit ``sim``'s architecture.
+    """
+    prefix = "sim."
+    state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
+    missing, unexpected = sim.load_state_dict(state, strict=False)
+    if missing or unexpected:
+        raise InputError(
+            f"{source}: weights do not fit the model of its config (missing {missing[:5]}, "
+            f"unexpected {unexpected[:5]})"
+        )
 
 
 def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[LearnedSimulator, dict]:
@@ -49,31 +93,15 @@ def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[Learned
         and the training run's resolved config (a dict) with the checkpoint's model card under
         ``model_card`` (:mod:`granular_pyg.training.model_card`; empty for old checkpoints).
     """
-    path = resolve_checkpoint(path)
-    if not path.is_file():
-        raise InputError(
-            f"ckpt: no checkpoint at {path}; pass a file from <run>/checkpoints/ or "
-            "pretrained:hopper / pretrained:drum"
-        )
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as exc:  # torch raises several types for corrupt files
-        raise InputError(f"{path}: not a readable checkpoint ({exc}); was it truncated?") from exc
-    config = ckpt.get("config") if isinstance(ckpt, dict) else None
+    path, ckpt = read_checkpoint(path, "ckpt", map_location)
+    config = ckpt.get("config")
     if not config or "model" not in config or "state_dict" not in ckpt:
         raise InputError(
             f"{path}: not a granular_pyg training checkpoint (no config or state_dict); "
             "train one with `python -m granular_pyg.train`"
         )
     sim = instantiate(OmegaConf.create(config["model"]))
-    prefix = "sim."
-    state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
-    missing, unexpected = sim.load_state_dict(state, strict=False)
-    if missing or unexpected:
-        raise InputError(
-            f"{path}: weights do not fit the model of its config (missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]})"
-        )
+    load_weights(sim, ckpt, str(path))
     config = dict(config) | {"model_card": ckpt.get("model_card") or {}}
     return sim.eval(), config
 

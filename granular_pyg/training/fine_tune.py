@@ -11,13 +11,12 @@ has computed its own.
 
 from __future__ import annotations
 
-import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError
+from granular_pyg.inference import load_weights, read_checkpoint
 from granular_pyg.io import read_trajectory
-from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.saved_config import migrate_config
 
@@ -28,15 +27,9 @@ INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
 
 
 def _read(init: str) -> dict:
-    path = resolve_checkpoint(init)
-    if not path.is_file():
-        raise InputError(f"init: no checkpoint at {path}; pass pretrained:<name> or a .ckpt file")
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as exc:  # torch raises several types for corrupt files
-        raise InputError(f"init: {path} is not a readable checkpoint ({exc})") from exc
-    if not isinstance(ckpt, dict) or "config" not in ckpt or "state_dict" not in ckpt:
-        raise InputError(f"init: {path} is not a granular_pyg checkpoint (no config or weights)")
+    _, ckpt = read_checkpoint(init, "init")
+    if "config" not in ckpt or "state_dict" not in ckpt:
+        raise InputError(f"init: {init} is not a granular_pyg checkpoint (no config or weights)")
     ckpt["config"] = migrate_config(ckpt["config"])
     return ckpt
 
@@ -89,14 +82,7 @@ def load_initial_weights(sim: LearnedSimulator, ckpt: dict) -> None:
     """Load the checkpoint's weights and normalisation statistics into ``sim`` (after the data
     module set its own); the learned step must be unchanged."""
     dt = float(sim.dt)
-    prefix = "sim."
-    state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
-    missing, unexpected = sim.load_state_dict(state, strict=False)
-    if missing or unexpected:
-        raise InputError(
-            f"init: the weights do not fit the model (missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]})"
-        )
+    load_weights(sim, ckpt, "init")
     if abs(float(sim.dt) - dt) > 1e-9 * max(dt, 1e-30):
         raise InputError(f"init: learned step {float(sim.dt):g} s, the data gives {dt:g} s")
 
@@ -118,6 +104,8 @@ def merge_cards(initial: dict, new: dict, init: str) -> dict:
     for name, bounds in old_data.get("materials", {}).items():
         materials[name] = union(bounds, materials[name]) if name in materials else bounds
     data["materials"] = materials
-    data["scene_kinds"] = sorted(set(data.get("scene_kinds", [])) | set(old_data.get("scene_kinds", [])))
+    data["scene_kinds"] = sorted(
+        set(data.get("scene_kinds", [])) | set(old_data.get("scene_kinds", []))
+    )
     data["trajectories"] = int(data.get("trajectories", 0)) + int(old_data.get("trajectories", 0))
     return dict(new) | {"training_data": data, "fine_tuned_from": init}
