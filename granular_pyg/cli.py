@@ -49,8 +49,11 @@ def _config_value_error(exc: BaseException) -> InputError | None:
     if isinstance(cause, InputError):  # names its own key
         return None
     section = next(
-        (line[len("full_key:") :].strip() for line in str(exc).splitlines()
-         if line.startswith("full_key:")),
+        (
+            line[len("full_key:") :].strip()
+            for line in str(exc).splitlines()
+            if line.startswith("full_key:")
+        ),
         "the config",
     )
     return InputError(

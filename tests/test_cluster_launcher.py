@@ -30,17 +30,33 @@ def test_the_slurm_preset_composes_to_submitit_with_its_defaults(command):
 
 def _sweep(tmp_path, module: str, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", module, "-m", "hydra/launcher=submitit_local",
-         "hydra.launcher.timeout_min=10", "hydra.sweep.dir=sweep", *args],
-        cwd=tmp_path, capture_output=True, text=True, timeout=600,
+        [
+            sys.executable,
+            "-m",
+            module,
+            "-m",
+            "hydra/launcher=submitit_local",
+            "hydra.launcher.timeout_min=10",
+            "hydra.sweep.dir=sweep",
+            *args,
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
 
 
 @pytest.mark.slow
 def test_a_local_submitit_sweep_of_train_runs_every_point(tmp_path):
     done = _sweep(
-        tmp_path, "granular_pyg.train", "model.latent=16,32", "trainer.fast_dev_run=true",
-        "threads=1", "trainer.enable_progress_bar=false", "hydra.sweep.subdir=${model.latent}",
+        tmp_path,
+        "granular_pyg.train",
+        "model.latent=16,32",
+        "trainer.fast_dev_run=true",
+        "threads=1",
+        "trainer.enable_progress_bar=false",
+        "hydra.sweep.subdir=${model.latent}",
     )
     assert done.returncode == 0, done.stderr[-3000:]
     for latent in (16, 32):
@@ -50,7 +66,12 @@ def test_a_local_submitit_sweep_of_train_runs_every_point(tmp_path):
 @pytest.mark.slow
 def test_a_local_submitit_sweep_of_generate_makes_one_dataset_per_point(tmp_path):
     done = _sweep(
-        tmp_path, "granular_pyg.generate", *TINY, "n=1", "jobs=1", "seed=1,2",
+        tmp_path,
+        "granular_pyg.generate",
+        *TINY,
+        "n=1",
+        "jobs=1",
+        "seed=1,2",
         "out=data/seed${seed}",
     )
     assert done.returncode == 0, done.stderr[-3000:]

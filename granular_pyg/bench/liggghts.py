@@ -96,7 +96,9 @@ def run(
     if device != "cpu":
         with torch.inference_mode():
             rollout_trajectory(sim, truth, steps=3, progress=False)  # kernels, allocator
-    runs = [(p, g) for p in map(str, precisions) for g in ((False, True) if wall_guard else (False,))]
+    runs = [
+        (p, g) for p in map(str, precisions) for g in ((False, True) if wall_guard else (False,))
+    ]
     for precision, guarded in runs:
         with torch.inference_mode():
             synchronize(device)

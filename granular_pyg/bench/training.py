@@ -98,7 +98,9 @@ def run(
         f"after {warmup} warm-up steps; overrides: {list(overrides) or 'none'}."
     )
     fig, ax = plt.subplots(figsize=(5, 3))
-    ax.bar([f"{r['processor']}\n{r['precision']}" for r in rows], [r["samples_per_s"] for r in rows])
+    ax.bar(
+        [f"{r['processor']}\n{r['precision']}" for r in rows], [r["samples_per_s"] for r in rows]
+    )
     ax.set_ylabel("training samples / s")
     ax.set_title("Training throughput (CPU)")
     fig.tight_layout()

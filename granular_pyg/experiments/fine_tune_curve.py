@@ -38,7 +38,12 @@ from granular_pyg.io.markdown import command_header, markdown_table
 __all__ = ["fine_tune_curve", "split_family"]
 
 #: Scalars of each evaluation kept on the curve (mean over the scored set; ``worst`` of the first).
-KEPT = ("discharge_rate_rel_error", "leaked_particles", "crushed_particles", "crushed_particles_truth")
+KEPT = (
+    "discharge_rate_rel_error",
+    "leaked_particles",
+    "crushed_particles",
+    "crushed_particles_truth",
+)
 
 
 def split_family(family: Path, largest: int) -> tuple[list[Path], list[Path], list[Path]]:
@@ -67,8 +72,17 @@ def _evaluate(ckpt: Path, scored: list[Path], out: Path, threads: int) -> dict:
     summary = out / "evaluation.json"
     if not summary.is_file():
         listed = ",".join(str(p) for p in scored)
-        _run(["granular_pyg.evaluate", f"ckpt={ckpt}", f"trajectories=[{listed}]",
-              f"hydra.run.dir={out}", "paraview=0", "progress=false", f"threads={threads}"])
+        _run(
+            [
+                "granular_pyg.evaluate",
+                f"ckpt={ckpt}",
+                f"trajectories=[{listed}]",
+                f"hydra.run.dir={out}",
+                "paraview=0",
+                "progress=false",
+                f"threads={threads}",
+            ]
+        )
     rows = json.loads(summary.read_text())["trajectories"]
     point = {key: float(np.nanmean([r[key] for r in rows])) for key in KEPT}
     errors = [abs(r["discharge_rate_rel_error"]) for r in rows]
@@ -78,17 +92,30 @@ def _evaluate(ckpt: Path, scored: list[Path], out: Path, threads: int) -> dict:
     return point
 
 
-def _train(init: str, pool: list[Path], valid: list[Path], minutes: int, run: Path,
-           threads: int, overrides: list[str]) -> Path:
+def _train(
+    init: str,
+    pool: list[Path],
+    valid: list[Path],
+    minutes: int,
+    run: Path,
+    threads: int,
+    overrides: list[str],
+) -> Path:
     """Train (or resume) ``run`` to ``minutes`` of training time; returns its checkpoint."""
     last = run / "checkpoints" / "last.ckpt"
     args = [
-        "granular_pyg.train", "+experiment=finetune", f"init={init}", "data.root=null",
+        "granular_pyg.train",
+        "+experiment=finetune",
+        f"init={init}",
+        "data.root=null",
         f"+data.trajectories={{train: [{','.join(map(str, pool))}], "
         f"valid: [{','.join(map(str, valid))}]}}",
-        f"trainer.max_time=00:00:{minutes:02d}:00" if minutes < 60 else
-        f"trainer.max_time=00:{minutes // 60:02d}:{minutes % 60:02d}:00",
-        f"hydra.run.dir={run}", f"threads={threads}", "checkpoint.every_n_train_steps=20",
+        f"trainer.max_time=00:00:{minutes:02d}:00"
+        if minutes < 60
+        else f"trainer.max_time=00:{minutes // 60:02d}:{minutes % 60:02d}:00",
+        f"hydra.run.dir={run}",
+        f"threads={threads}",
+        "checkpoint.every_n_train_steps=20",
         *overrides,
     ]
     if last.is_file():
@@ -98,16 +125,26 @@ def _train(init: str, pool: list[Path], valid: list[Path], minutes: int, run: Pa
 
 
 def fine_tune_curve(
-    init: str, family: Path, new: list[int], minutes: list[int], out: Path, threads: int = 1,
-    overrides: list[str] | None = None, pool_size: int | None = None,
+    init: str,
+    family: Path,
+    new: list[int],
+    minutes: list[int],
+    out: Path,
+    threads: int = 1,
+    overrides: list[str] | None = None,
+    pool_size: int | None = None,
 ) -> dict:
     """Run (or continue) the curve; returns it (also written to ``out/curve.json``).
     ``pool_size``: training trajectories set aside for the runs (default the largest of
     ``new``); the rest are scored, so calls that run parts of one curve must agree on it."""
     new, minutes = sorted(set(new)), sorted(set(minutes))
     pool, valid, scored = split_family(family, max(max(new), pool_size or 0))
-    curve = {"init": init, "family": str(family), "scored": [str(p) for p in scored],
-             "points": [{"new": 0, "minutes": 0, **_evaluate_init(init, scored, out, threads)}]}
+    curve = {
+        "init": init,
+        "family": str(family),
+        "scored": [str(p) for p in scored],
+        "points": [{"new": 0, "minutes": 0, **_evaluate_init(init, scored, out, threads)}],
+    }
     for n in new:
         run = out / f"new{n}"
         for budget in minutes:
@@ -135,19 +172,34 @@ def _write(curve: dict, out: Path) -> None:
     with atomic_write(out / "curve.json") as fh:
         json.dump(curve, fh, indent=1)
     rows = [
-        [p["new"], p["minutes"], p.get("steps", 0), f"{100 * p['discharge_rate_abs_error_mean']:.1f}%",
-         f"{100 * p['discharge_rate_abs_error_worst']:.1f}%", f"{p['leaked_particles']:.0f}",
-         f"{p['crushed_particles']:.0f} ({p['crushed_particles_truth']:.0f})"]
+        [
+            p["new"],
+            p["minutes"],
+            p.get("steps", 0),
+            f"{100 * p['discharge_rate_abs_error_mean']:.1f}%",
+            f"{100 * p['discharge_rate_abs_error_worst']:.1f}%",
+            f"{p['leaked_particles']:.0f}",
+            f"{p['crushed_particles']:.0f} ({p['crushed_particles_truth']:.0f})",
+        ]
         for p in curve["points"]
     ]
     table = markdown_table(
-        ["new trajectories", "training minutes", "steps", "discharge-rate error, mean", "worst",
-         "leaked (mean)", "crushed (LIGGGHTS)"],
+        [
+            "new trajectories",
+            "training minutes",
+            "steps",
+            "discharge-rate error, mean",
+            "worst",
+            "leaked (mean)",
+            "crushed (LIGGGHTS)",
+        ],
         rows,
     )
-    text = (f"# Fine-tuning {curve['init']} on {curve['family']}\n\n"
-            f"{command_header('granular_pyg.experiments.fine_tune_curve')}\n\nScored on {len(curve['scored'])} trajectories no run trained "
-            f"on.\n\n{table}\n")
+    header = command_header("granular_pyg.experiments.fine_tune_curve")
+    text = (
+        f"# Fine-tuning {curve['init']} on {curve['family']}\n\n{header}\n\n"
+        f"Scored on {len(curve['scored'])} trajectories no run trained on.\n\n{table}\n"
+    )
     with atomic_write(out / "curve.md") as fh:
         fh.write(text)
     _plot(curve, out / "curve.png")
@@ -163,9 +215,12 @@ def _plot(curve: dict, path: Path) -> None:
     start = curve["points"][0]["discharge_rate_abs_error_mean"] * 100
     for n in sorted({p["new"] for p in curve["points"] if p["new"]}):
         pts = [p for p in curve["points"] if p["new"] == n]
-        ax.plot([0] + [p["minutes"] for p in pts],
-                [start] + [100 * p["discharge_rate_abs_error_mean"] for p in pts],
-                marker="o", label=f"{n} new trajectories")
+        ax.plot(
+            [0] + [p["minutes"] for p in pts],
+            [start] + [100 * p["discharge_rate_abs_error_mean"] for p in pts],
+            marker="o",
+            label=f"{n} new trajectories",
+        )
     ax.axhline(5, color="grey", lw=0.8, ls="--", label="5% target")
     ax.set_xlabel("training minutes (one core)")
     ax.set_ylabel("discharge-rate error, mean (%)")
@@ -186,7 +241,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=Path("outputs/fine_tune_curve"))
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument(
-        "--pool", type=int, default=None,
+        "--pool",
+        type=int,
+        default=None,
         help="training trajectories set aside (default: the largest --new); the rest are scored",
     )
     parser.add_argument("overrides", nargs="*", help="extra train overrides (key=value)")
@@ -195,8 +252,16 @@ def main(argv: list[str] | None = None) -> None:
         whole_number("--new", n, minimum=1)
     for m in args.minutes:
         whole_number("--minutes", m, minimum=1)
-    curve = fine_tune_curve(args.init, args.family, args.new, args.minutes, args.out,
-                            args.threads, args.overrides, args.pool)
+    curve = fine_tune_curve(
+        args.init,
+        args.family,
+        args.new,
+        args.minutes,
+        args.out,
+        args.threads,
+        args.overrides,
+        args.pool,
+    )
     print(f"curve: {args.out / 'curve.md'} ({len(curve['points'])} points)")
 
 

@@ -15,8 +15,11 @@ from granular_pyg.samples import SAMPLES_DIR
 
 
 def _family(tmp_path, train: int, test: int):
-    splits = {"train": [f"t{i}.h5" for i in range(train)], "valid": ["v.h5"],
-              "test": [f"s{i}.h5" for i in range(test)]}
+    splits = {
+        "train": [f"t{i}.h5" for i in range(train)],
+        "valid": ["v.h5"],
+        "test": [f"s{i}.h5" for i in range(test)],
+    }
     (tmp_path / "manifest.json").write_text(json.dumps({"splits": splits}))
     return tmp_path
 
@@ -39,9 +42,20 @@ def test_a_family_too_small_for_the_largest_run_is_refused(tmp_path):
 @pytest.mark.slow
 def test_a_one_minute_curve_on_the_bundled_hopper(tmp_path):
     out = tmp_path / "curve"
-    cmd = [sys.executable, "-m", "granular_pyg.experiments.fine_tune_curve",
-           "--family", str(SAMPLES_DIR / "hopper"), "--new", "1", "--minutes", "1",
-           "--out", str(out), "trainer.enable_progress_bar=false"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "granular_pyg.experiments.fine_tune_curve",
+        "--family",
+        str(SAMPLES_DIR / "hopper"),
+        "--new",
+        "1",
+        "--minutes",
+        "1",
+        "--out",
+        str(out),
+        "trainer.enable_progress_bar=false",
+    ]
     done = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
     curve = json.loads((out / "curve.json").read_text())

@@ -260,5 +260,7 @@ def test_centre_of_mass_swing_is_the_amplitude_after_the_settling_time():
     centres[4:, 0] = [0.002, -0.002, 0.002, -0.002]  # +-2 mm about 0 from 1 s on
     centres[5, :] = np.nan  # a frame without particles is left out
     swing = centre_of_mass_swing(centres, times, after=1.0)
-    assert swing == pytest.approx(0.002 + 0.002 / 3, rel=1e-12)  # 2, 2, -2 mm: mean 2/3 mm, farthest 8/3 mm
+    assert swing == pytest.approx(
+        0.002 + 0.002 / 3, rel=1e-12
+    )  # 2, 2, -2 mm: mean 2/3 mm, farthest 8/3 mm
     assert np.isnan(centre_of_mass_swing(centres, times, after=1.75))

@@ -24,8 +24,14 @@ def test_a_fine_tuning_run_starts_from_the_initial_weights_and_normalisation(tmp
     # lr 1e-12: one optimiser step moves a weight by ~1e-12, so the saved model is the initial one
     cfg = compose(
         "train",
-        [*FINETUNE, "trainer.max_steps=1", "optim.lr=1e-12", "optim.lr_final=1e-12",
-         "checkpoint.every_n_train_steps=1", "rollout_validation.every_n_epochs=1000"],
+        [
+            *FINETUNE,
+            "trainer.max_steps=1",
+            "optim.lr=1e-12",
+            "optim.lr_final=1e-12",
+            "checkpoint.every_n_train_steps=1",
+            "rollout_validation.every_n_epochs=1000",
+        ],
     )
     train(cfg, tmp_path)
     tuned, tuned_cfg = load_simulator(tmp_path / "checkpoints" / "last.ckpt")
@@ -57,9 +63,10 @@ def test_the_learned_step_sets_frames_per_step_and_the_model_comes_from_the_chec
 
 
 def test_a_frame_spacing_the_step_is_not_a_multiple_of_is_refused(tmp_path):
+    import dataclasses
+
     from granular_pyg.io import read_trajectory, write_trajectory
     from granular_pyg.samples import sample_files
-    import dataclasses
 
     traj = read_trajectory(sample_files("hopper")[0])
     scene = dataclasses.replace(traj.scene, frame_dt=0.03)
@@ -76,13 +83,27 @@ def test_a_missing_initial_model_is_named():
 
 
 def test_the_card_of_a_fine_tuned_model_covers_both_datasets():
-    old = {"training_data": {"trajectories": 4, "scene_kinds": ["hopper"],
-                             "particle_radius_m": [0.001, 0.0015], "particles": [500, 900],
-                             "frame_dt_s": [0.02, 0.02], "materials": {"friction": [0.3, 0.5]}}}
-    new = {"dt_s": 0.02, "training_data": {"trajectories": 2, "scene_kinds": ["mesh"],
-                                           "particle_radius_m": [0.0012, 0.002],
-                                           "particles": [1500, 1500], "frame_dt_s": [0.0025, 0.0025],
-                                           "materials": {"friction": [0.6, 0.6]}}}
+    old = {
+        "training_data": {
+            "trajectories": 4,
+            "scene_kinds": ["hopper"],
+            "particle_radius_m": [0.001, 0.0015],
+            "particles": [500, 900],
+            "frame_dt_s": [0.02, 0.02],
+            "materials": {"friction": [0.3, 0.5]},
+        }
+    }
+    new = {
+        "dt_s": 0.02,
+        "training_data": {
+            "trajectories": 2,
+            "scene_kinds": ["mesh"],
+            "particle_radius_m": [0.0012, 0.002],
+            "particles": [1500, 1500],
+            "frame_dt_s": [0.0025, 0.0025],
+            "materials": {"friction": [0.6, 0.6]},
+        },
+    }
     card = merge_cards(old, new, "pretrained:hopper")
     data = card["training_data"]
     assert data["particle_radius_m"] == [0.001, 0.002]
