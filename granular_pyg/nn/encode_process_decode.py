@@ -79,7 +79,7 @@ class EncodeProcessDecode(nn.Module):
         """
         dtype = self.decoder[-1].weight.dtype
         _check_graph(x, edge_index, edge_attr, self.node_in, self.edge_in, dtype)
-        latent_x, _ = self.processor(
-            self.node_encoder(x), edge_index, self.edge_encoder(edge_attr), overwrite=True
-        )
+        # Under autocast the inference path keeps the edge latents in the autocast dtype.
+        edge_latents = self.edge_encoder(edge_attr, store_in_autocast_dtype=True)
+        latent_x, _ = self.processor(self.node_encoder(x), edge_index, edge_latents, overwrite=True)
         return self.decoder(latent_x)
