@@ -22,8 +22,11 @@ import torch
 from granular_pyg.bench.report import SuiteResult
 
 
-def _measure(kind: str, particles: int, triangles: int, radius: float, repeats: int) -> dict:
-    """One measurement, run in a child process; returns seconds and peak RSS (MiB)."""
+def _measure(
+    kind: str, particles: int, triangles: int, radius: float, repeats: int, precision: str = "32"
+) -> dict:
+    """One measurement, run in a child process; returns seconds and peak RSS (MiB).
+    ``precision`` is the network's for a model step (``"32"`` or ``"bf16"``)."""
     from hydra.utils import instantiate
 
     from granular_pyg.bench.meshes import funnel_mesh, packed_particles
@@ -62,6 +65,8 @@ def _measure(kind: str, particles: int, triangles: int, radius: float, repeats: 
             )
             walls = WallSet(scene)
             sim = instantiate(compose("train", [f"model.radius={cutoff}"]).model).eval()
+            sim.set_network_precision(precision)
+            out["precision"] = precision
             seq = pos[:, None].repeat(1, sim.history + 1, 1)
             graph = sim.build_graph(seq, walls, 0.0)
             out["seconds"] = time_call(lambda: sim(sim.build_graph(seq, walls, 0.0)), repeats)
@@ -90,20 +95,29 @@ def run(
     fixed_particles: int = 20000,
     particle_radius: float = 0.0006,
     repeats: int = 3,
+    precisions: tuple[str, ...] = ("32",),
 ) -> SuiteResult:
     """Run the suite; see the module docstring. ``particle_radius`` (m) sets the packing and
-    the cut-off (3.75 radii, the model's 7.5 mm for 2 mm particles)."""
+    the cut-off (3.75 radii, the model's 7.5 mm for 2 mm particles); the model step is
+    measured once per network precision in ``precisions`` (``"32"``, ``"bf16"``)."""
     rows = []
+    model_sweeps = [
+        (f"model step {p}" if len(precisions) > 1 else "model step", p) for p in precisions
+    ]
     sweeps = (
-        ("graph", "particles", [(n, fixed_triangles) for n in particle_counts]),
-        ("model step", "particles", [(n, fixed_triangles) for n in model_particle_counts]),
-        ("graph", "triangles", [(fixed_particles, t) for t in triangle_counts]),
+        [("graph", "particles", [(n, fixed_triangles) for n in particle_counts], "32")]
+        + [
+            (kind, "particles", [(n, fixed_triangles) for n in model_particle_counts], p)
+            for kind, p in model_sweeps
+        ]
+        + [("graph", "triangles", [(fixed_particles, t) for t in triangle_counts], "32")]
     )
     results = {}
-    for kind, axis, sizes in sweeps:
+    for kind, axis, sizes, precision in sweeps:
         measured = []
         for n, t in sizes:
-            row = _in_child("graph" if kind == "graph" else "model", n, t, particle_radius, repeats)
+            what = "graph" if kind == "graph" else "model"
+            row = _in_child(what, n, t, particle_radius, repeats, precision)
             measured.append(row | {"what": kind, "against": axis})
         xs = [r[axis] for r in measured]
         b = _exponent(xs, [r["seconds"] for r in measured])
@@ -125,7 +139,7 @@ def run(
 
 def _figure(rows: list[dict]):
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
-    for kind in ("graph", "model step"):
+    for kind in dict.fromkeys(r["what"] for r in rows if r["against"] == "particles"):
         part = [r for r in rows if r["what"] == kind and r["against"] == "particles"]
         a.loglog([r["particles"] for r in part], [r["seconds"] for r in part], "o-", label=kind)
     a.set_xlabel("particles")
