@@ -164,8 +164,8 @@ def evaluate_pair(
         "mean_pos_truth": mean_t,
         "mean_pos_pred": mean_p,
         "flow_z_centres": 0.5 * (edges[1:] + edges[:-1]),
-        "flow_z_truth": np.nanmean(prof_t, axis=0),
-        "flow_z_pred": np.nanmean(prof_p, axis=0),
+        "flow_z_truth": _column_nanmean(prof_t),
+        "flow_z_pred": _column_nanmean(prof_p),
         "flow_t_truth": _mean_vz(t_vel),
         "flow_t_pred": _mean_vz(p_vel),
         "entropy_truth": ent_t,
@@ -201,6 +201,15 @@ def _nanmean(values: np.ndarray) -> float:
     """Mean of the finite values, NaN (without a warning) when there is none."""
     finite = values[np.isfinite(values)]
     return float(finite.mean()) if finite.size else float("nan")
+
+
+def _column_nanmean(values: np.ndarray) -> np.ndarray:
+    """``[T, B] -> [B]``: per column the mean of the finite values, NaN (without a warning)
+    for a column with none (a height band no particle reached)."""
+    finite = np.isfinite(values)
+    total = np.where(finite, values, 0.0).sum(0)
+    count = finite.sum(0)
+    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
 
 
 def _mean_vz(vel: np.ndarray) -> np.ndarray:
