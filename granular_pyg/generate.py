@@ -214,9 +214,17 @@ def generate(cfg: DictConfig) -> Path:
                 bar.update(1)
     bar.close()
 
+    changed = _changed_digests(recorded, timings)
     manifest = _manifest(cfg, plan, recorded, timings)
     with atomic_write(path) as fh:
         json.dump(manifest, fh, indent=1)
+    if changed:
+        raise InputError(
+            f"out: {len(changed)} regenerated trajectories differ from the SHA-256 their "
+            f"manifest recorded ({'; '.join(changed[:4])}): this LIGGGHTS build or machine "
+            "does not reproduce the dataset bit for bit (the manifest keeps the recorded "
+            "digests; the new files are kept for inspection)"
+        )
     if not cfg.keep_workdirs:
         shutil.rmtree(out / ".work", ignore_errors=True)
     if timings:
@@ -228,6 +236,17 @@ def generate(cfg: DictConfig) -> Path:
     return path
 
 
+def _changed_digests(recorded: dict, timings: dict) -> list[str]:
+    """``file: recorded -> new`` for each trajectory generated now whose digest differs from
+    the one an earlier run recorded in the manifest."""
+    changed = []
+    for file, timing in sorted(timings.items()):
+        before = (recorded.get(file) or {}).get("sha256")
+        if before and timing.get("sha256") != before:
+            changed.append(f"{file}: {before[:12]} -> {str(timing.get('sha256'))[:12]}")
+    return changed
+
+
 def _manifest(cfg: DictConfig, plan: list[dict], recorded: dict, timings: dict | None = None):
     """The manifest of ``plan``: settings, splits, and per trajectory its timing and digest
     (from this run, else as ``recorded`` by an earlier one)."""
@@ -236,7 +255,8 @@ def _manifest(cfg: DictConfig, plan: list[dict], recorded: dict, timings: dict |
     entries = []
     for e in plan:
         done = timings.get(e["file"]) or (recorded.get(e["file"]) or {}).get("timing")
-        sha = (done or {}).pop("sha256", None) or (recorded.get(e["file"]) or {}).get("sha256")
+        new_sha = (done or {}).pop("sha256", None)
+        sha = (recorded.get(e["file"]) or {}).get("sha256") or new_sha  # the first one stays
         entries.append(e | {"family": family, "timing": done, "sha256": sha})
     return {
         "scene": cfg.scene.name,

@@ -36,6 +36,13 @@ TINY = [
     "scene.ranges.num_particles=[150,200]",
     "progress=false",
 ]
+# The digests of TINY's n=3 dataset as first generated (Debian's LIGGGHTS 3.8, x86-64): a
+# regeneration on any machine must give the same bits.
+TINY_DIGESTS = {
+    "traj_0000.h5": "b1dacf625fc332708929917f2253157bfd7d8c1e769a7d512ae9592b7e04c640",
+    "traj_0001.h5": "8a4175b70409278abb157ee948e66e6216562651dd89927f9f5f4bb6ea74f5b1",
+    "traj_0002.h5": "c643fac1a05461688b1767404415c81e8c1421f3d0f80b436651ab471e27d1b3",
+}
 
 
 def _cfg(*overrides: str):
@@ -107,6 +114,8 @@ def test_generate_runs_liggghts_writes_hdf5_and_resumes(tmp_path):
     assert np.isfinite(traj.positions[0]).all()
     assert not (out / ".work").exists()
 
+    assert {e["file"]: e["sha256"] for e in manifest["trajectories"]} == TINY_DIGESTS
+
     # Resume: only the missing trajectory is made again, the others are untouched, and the
     # new one is bit-identical (its digest equals the manifest's).
     stamp = (out / "traj_0000.h5").stat().st_mtime_ns
@@ -116,6 +125,19 @@ def test_generate_runs_liggghts_writes_hdf5_and_resumes(tmp_path):
     generate(_cfg(*TINY, "n=3", f"out={out}"))
     assert trajectory_digest(read_trajectory(out / "traj_0002.h5")) == digest
     assert (out / "traj_0000.h5").stat().st_mtime_ns == stamp
+
+    # A regeneration that does not reproduce the recorded bits is an error naming the file;
+    # the manifest keeps the digest it recorded first.
+    tampered = json.loads(manifest_path.read_text())
+    tampered["trajectories"][2]["sha256"] = "0" * 64
+    manifest_path.write_text(json.dumps(tampered))
+    (out / "traj_0002.h5").unlink()
+    with pytest.raises(
+        InputError, match=r"traj_0002.h5: 000000000000 -> c643fac1a054.*bit for bit"
+    ):
+        generate(_cfg(*TINY, "n=3", f"out={out}"))
+    assert json.loads(manifest_path.read_text())["trajectories"][2]["sha256"] == "0" * 64
+    manifest_path.write_text(json.dumps(manifest))
 
     # Other settings into the same folder: refused, naming the keys; nothing moves.
     before = manifest_path.read_text()
