@@ -17,7 +17,10 @@ feature mismatch is the classic silent bug of learned simulators). For one time 
   :class:`~granular_pyg.scenes.Materials`, broadcast to every node and scaled by the fixed map
   :data:`MATERIAL_FEATURES` (no statistics), not weighted; they come in a
   :class:`ParticleProps`;
-- edge features ``[4]`` for an edge ``j -> i``: ``(x_i - x_j) / R`` and ``|x_i - x_j| / R``.
+- edge features ``[4]`` for an edge ``j -> i``: ``(x_i - x_j) / R`` and ``|x_i - x_j| / R``;
+  with the model option ``contact_feature`` a fifth, the distance in units of the contact
+  distance, ``|x_i - x_j| / (r_i + r_j)`` (``r`` 0 for a wall node): 1 where two particles
+  touch or a particle touches a wall, whatever the particles' size.
 
 No absolute position enters, so predictions are translation invariant up to rounding.
 Positions are centred on the particles' mean in float64 before the cast to float32, so the
@@ -176,10 +179,13 @@ class LearnedSimulator(nn.Module):
             nodes), so one model can serve several particle sizes.
         material_features: more node inputs, one per named field of the Scene's Materials
             (keys of :data:`MATERIAL_FEATURES`, scaled by it), the same on every node.
+        contact_feature: one more edge input: the edge's length over its contact distance
+            (the two radii summed; a wall node's radius 0), 1 at contact for any particle size.
 
-    With ``radius_feature`` or ``material_features`` the graph needs a :class:`ParticleProps`
-    (``props`` of :meth:`build_graph`, :meth:`step`, :meth:`rollout`); without them a model
-    ignores it and is exactly the model without these options.
+    With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
+    :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
+    :meth:`rollout`); without them a model ignores it and is exactly the model without these
+    options.
     """
 
     def __init__(
@@ -198,6 +204,7 @@ class LearnedSimulator(nn.Module):
         max_num_neighbors: int | None = None,
         radius_feature: bool = False,
         material_features: Iterable[str] = (),
+        contact_feature: bool = False,
     ) -> None:
         super().__init__()
         if history < 1:
@@ -221,13 +228,19 @@ class LearnedSimulator(nn.Module):
                 f"model.material_features: expected distinct names among "
                 f"{list(MATERIAL_FEATURES)}, got {list(names)}"
             )
+        if not isinstance(contact_feature, bool):
+            raise InputError(
+                f"model.contact_feature: expected true or false, got {contact_feature!r}"
+            )
         self.radius_feature, self.material_features = radius_feature, names
+        self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
         self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight)
         node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES
         node_in += int(self.radius_feature) + len(self.material_features)
+        edge_in = NUM_EDGE_FEATURES + int(self.contact_feature)
         self.model = EncodeProcessDecode(
-            node_in, NUM_EDGE_FEATURES, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
+            node_in, edge_in, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
         )
         self.register_buffer("dt", torch.tensor(float(dt), dtype=torch.float64))
         self.network_dtype: torch.dtype | None = None  # None: float32 (see set_network_precision)
@@ -284,15 +297,19 @@ class LearnedSimulator(nn.Module):
 
     @property
     def uses_props(self) -> bool:
-        """Whether the features need a :class:`ParticleProps` (radius or material inputs)."""
-        return self.radius_feature or bool(self.material_features)
+        """Whether the features need a :class:`ParticleProps` (radius, contact or material
+        inputs)."""
+        return self.radius_feature or self.contact_feature or bool(self.material_features)
 
     def _check_props(self, props: ParticleProps | None, num: int) -> None:
         """Refuse a missing or mis-sized ``props`` when the options need it (no-op otherwise)."""
         if not self.uses_props:
             return
         if props is None:
-            options = (["model.radius_feature=true"] if self.radius_feature else []) + (
+            options = (
+                (["model.radius_feature=true"] if self.radius_feature else [])
+                + (["model.contact_feature=true"] if self.contact_feature else [])
+            ) + (
                 [f"model.material_features={list(self.material_features)}"]
                 if self.material_features
                 else []
@@ -309,7 +326,7 @@ class LearnedSimulator(nn.Module):
             raise InputError(
                 f"props: {len(props)} radii for {num} particles; give one per row of pos_seq"
             )
-        if self.radius_feature:
+        if self.radius_feature or self.contact_feature:
             radius = props.radius
             if not bool((torch.isfinite(radius) & (radius > 0)).all()):
                 raise InputError("props.radius: every radius must be finite and positive (m)")
@@ -374,6 +391,8 @@ class LearnedSimulator(nn.Module):
         src, dst = data.edge_index
         disp = (rel[dst] - rel[src]) / self.radius
         edge_attr = torch.cat([disp, torch.linalg.vector_norm(disp, dim=1, keepdim=True)], 1)
+        if self.contact_feature:
+            edge_attr = torch.cat([edge_attr, self._contact_column(edge_attr, src, dst, props)], 1)
         return Data(
             x=x,
             edge_index=data.edge_index,
@@ -381,6 +400,17 @@ class LearnedSimulator(nn.Module):
             is_wall=data.is_wall,
             num_real=num_real,
         )
+
+    def _contact_column(
+        self, edge_attr: torch.Tensor, src: torch.Tensor, dst: torch.Tensor, props: ParticleProps
+    ) -> torch.Tensor:
+        """``[E, 1]``: each edge's length over its contact distance ``r_i + r_j`` (a wall
+        node's ``r`` is 0; every edge ends at a particle, so the sum is positive)."""
+        radius = props.radius.to(edge_attr.device, torch.float32)
+        num_real = radius.shape[0]
+        sender = torch.where(src < num_real, radius[src.clamp(max=num_real - 1)], 0.0)
+        contact = (sender + radius[dst]) / self.radius  # in the cut-off's units, like the length
+        return edge_attr[:, 3:4] / contact.unsqueeze(1)
 
     def _property_columns(
         self, props: ParticleProps, num_wall: int, like: torch.Tensor

@@ -137,6 +137,34 @@ def test_the_radius_column_is_radius_over_cutoff_and_zero_on_walls(hopper):
     torch.testing.assert_close(mixed.x[~wall, -1], radii / CUTOFF, rtol=1e-6, atol=0)
 
 
+def test_the_contact_column_is_length_over_the_summed_radii(hopper):
+    """Brute force per edge: |x_i - x_j| / (r_i + r_j), a wall node's radius 0; the other
+    columns are untouched, and 1 means contact for any particle size."""
+    traj, seq, present, t = hopper
+    walls = WallSet(traj.scene)
+    n = seq.shape[0]
+    radii = torch.linspace(1e-3, 2e-3, n)
+    plain = _model(radius_feature=True)
+    sim = _model(radius_feature=True, contact_feature=True)
+    props = _props(traj, present, radius=radii)
+    graph = sim.build_graph(seq, walls, t, props=props)
+    before = plain.build_graph(seq, walls, t, props=props)
+    assert graph.edge_attr.shape[1] == 5
+    assert torch.equal(graph.edge_attr[:, :4], before.edge_attr)
+    pos = torch.cat([seq[:, -1].double(), walls.contacts(seq[:, -1], CUTOFF, t).closest.double()])
+    src, dst = graph.edge_index
+    wall_edge = src >= n
+    assert wall_edge.any() and (~wall_edge).any()
+    node_radius = torch.cat([radii.double(), torch.zeros(pos.shape[0] - n, dtype=torch.float64)])
+    expected = (pos[dst] - pos[src]).norm(dim=1) / (node_radius[src] + node_radius[dst])
+    torch.testing.assert_close(graph.edge_attr[:, 4].double(), expected, rtol=1e-5, atol=1e-6)
+    # particles twice as large: the same edges, every edge half as many contact distances long
+    twice = sim.build_graph(seq, walls, t, props=_props(traj, present, radius=2 * radii))
+    torch.testing.assert_close(twice.edge_attr[:, 4], graph.edge_attr[:, 4] / 2)
+    assert sim.model.edge_encoder[0].in_features == 5
+    assert plain.model.edge_encoder[0].in_features == 4
+
+
 def test_the_material_columns_are_the_scaled_values_on_every_node(hopper):
     traj, seq, present, t = hopper
     walls = WallSet(traj.scene)
@@ -177,10 +205,12 @@ def test_the_encoder_input_grows_by_the_columns():
 @pytest.mark.parametrize(
     "options",
     [{"material_features": ["stiffness"]}, {"material_features": ["friction", "friction"]},
-     {"radius_feature": "yes"}],
+     {"radius_feature": "yes"}, {"contact_feature": 1}],
 )  # fmt: skip
 def test_bad_options_are_refused(options):
-    with pytest.raises(InputError, match=r"model\.(material_features|radius_feature)"):
+    with pytest.raises(
+        InputError, match=r"model\.(material_features|radius_feature|contact_feature)"
+    ):
         _model(**options)
 
 
