@@ -117,11 +117,17 @@ def warn_outside_training(config: dict, truth: Trajectory, name: str) -> list[st
     return found
 
 
+def whole_multiple(dt: float, frame_dt: float) -> int | None:
+    """``dt / frame_dt`` (both s) when it is a whole number >= 1 (to 1e-6), else None."""
+    ratio = dt / frame_dt
+    k = round(ratio)
+    return k if k >= 1 and abs(ratio - k) <= 1e-6 * max(1.0, ratio) else None
+
+
 def time_step_multiple(sim: LearnedSimulator, frame_dt: float) -> int:
     """Saved frames per learned step: ``sim.dt / frame_dt``, which must be a whole number."""
-    ratio = float(sim.dt) / frame_dt
-    k = round(ratio)
-    if k < 1 or abs(ratio - k) > 1e-6 * max(1.0, ratio):
+    k = whole_multiple(float(sim.dt), frame_dt)
+    if k is None:
         raise InputError(
             f"the model's step dt = {float(sim.dt):g} s is not a multiple of the trajectory's "
             f"frame spacing {frame_dt:g} s; roll out on data recorded every dt / k seconds"

@@ -19,6 +19,7 @@ from omegaconf import DictConfig, OmegaConf
 from granular_pyg.cli import command
 from granular_pyg.config import flatten
 from granular_pyg.errors import InputError
+from granular_pyg.inference import read_checkpoint
 from granular_pyg.progress import show_progress
 from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
 from granular_pyg.training.epoch_log import EpochLog
@@ -36,13 +37,8 @@ DERIVED_KEYS = {"model.dt"}
 
 
 def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
-    path = Path(ckpt_path)
-    if not path.is_file():
-        raise InputError(f"ckpt_path: no checkpoint at {path}")
-    try:
-        saved = torch.load(path, map_location="cpu", weights_only=False).get("config")
-    except Exception as exc:  # torch raises several types for corrupt files
-        raise InputError(f"ckpt_path: {path} is not a readable checkpoint ({exc})") from exc
+    path, ckpt = read_checkpoint(ckpt_path, "ckpt_path")
+    saved = ckpt.get("config")
     if saved is None:
         return
     saved = migrate_config(saved)

@@ -15,7 +15,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError
-from granular_pyg.inference import load_weights, read_checkpoint
+from granular_pyg.inference import load_weights, read_checkpoint, whole_multiple
 from granular_pyg.io import read_trajectory
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.saved_config import migrate_config
@@ -68,8 +68,8 @@ def with_initial_model(cfg: DictConfig) -> tuple[DictConfig, dict]:
             if key in saved.get("data", {}):
                 cfg.data[key] = saved["data"][key]
         frame_dt = _frame_spacing(cfg)
-        k = round(dt / frame_dt)
-        if k < 1 or abs(dt / frame_dt - k) > 1e-6 * max(1.0, dt / frame_dt):
+        k = whole_multiple(dt, frame_dt)
+        if k is None:
             raise InputError(
                 f"init: the model's learned step {dt:g} s is not a whole multiple of the new "
                 f"data's frame spacing {frame_dt:g} s; record frames every {dt:g} s / k"
