@@ -173,7 +173,8 @@ def _markdown(rollouts, means, info, figures, out: Path) -> str:
         "",
         f"- model: `{info.get('ckpt', '?')}` (variant {info.get('variant', '?')})",
         f"- command: `{info.get('command', '')}`",
-        "- EMD: W2^2 (POT `ot.emd2` on squared Euclidean costs, uniform weights), at learned "
+        "- EMD: W2^2 (POT `ot.emd2` on squared Euclidean costs, uniform weights; above "
+        "4,000 particles, over the same 4,000 particles drawn at random on both sides), at learned "
         "steps 2^k, every step the rollout has (`emd_frames` of them): where one side has "
         "drained and the other has not, the remaining particles' mean squared distance to the "
         "outlet point; errors are absolute differences of the curves, relative for the "

@@ -19,7 +19,11 @@ from scipy.spatial.distance import cdist
 from granular_pyg.errors import InputError
 from granular_pyg.scenes import Scene
 
-__all__ = ["emd", "emd_at_powers", "outlet_point"]
+__all__ = ["MAX_EMD_POINTS", "emd", "emd_at_powers", "outlet_point"]
+
+#: Largest set :func:`emd` solves exactly: the cost matrix of two 4,000-point sets is 128 MB
+#: and POT solves it in seconds; that of two 20,000-point sets would be 3.2 GB and take hours.
+MAX_EMD_POINTS = 4000
 
 
 def outlet_point(scene: Scene) -> np.ndarray:
@@ -51,8 +55,27 @@ def _present(name: str, points: np.ndarray) -> np.ndarray:
     return points[finite.all(1)]
 
 
+def _subsample(a: np.ndarray, b: np.ndarray, max_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_points`` rows of each set, drawn without replacement with a fixed seed;
+    two sets of the same length (the same particles, truth and prediction) keep the same rows,
+    so a perfect prediction still scores 0."""
+    rng = np.random.default_rng(0)
+    if len(a) == len(b) and len(a) > max_points:
+        rows = np.sort(rng.choice(len(a), max_points, replace=False))
+        return a[rows], b[rows]
+    if len(a) > max_points:
+        a = a[np.sort(rng.choice(len(a), max_points, replace=False))]
+    if len(b) > max_points:
+        b = b[np.sort(rng.choice(len(b), max_points, replace=False))]
+    return a, b
+
+
 def emd(
-    a: np.ndarray, b: np.ndarray, squared: bool = True, sink: np.ndarray | None = None
+    a: np.ndarray,
+    b: np.ndarray,
+    squared: bool = True,
+    sink: np.ndarray | None = None,
+    max_points: int | None = MAX_EMD_POINTS,
 ) -> float:
     r"""Optimal-transport distance between two particle sets with uniform weights.
 
@@ -70,6 +93,9 @@ def emd(
         b: ``[M, 3]`` positions (m).
         squared: squared Euclidean cost (W2^2) or Euclidean (W1).
         sink: ``[3]`` (m) the point that stands in for an empty set, or None.
+        max_points: above this many particles in a set, the distance is that of a random
+            subset of the particles (fixed seed; the same rows of both sets when they are the
+            same particles, before the particles that left are dropped); None: always exact.
 
     Returns:
         The distance (m^2 or m); 0 when both sets are empty.
@@ -82,6 +108,9 @@ def emd(
     b = np.asarray(b, dtype=np.float64)
     if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
         raise InputError(f"emd: expected [N, d] and [M, d] arrays, got {a.shape} and {b.shape}")
+    if max_points is not None and max(len(a), len(b)) > max_points:
+        _present("a", a), _present("b", b)  # refuse a corrupted row even if it is not drawn
+        a, b = _subsample(a, b, int(max_points))
     a, b = _present("a", a), _present("b", b)
     if len(a) == 0 and len(b) == 0:
         return 0.0

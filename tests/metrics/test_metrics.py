@@ -43,6 +43,27 @@ def test_emd_of_a_shift_is_the_squared_shift():
     assert emd(pts, pts + shift, squared=False) == pytest.approx(0.5, rel=1e-9)
 
 
+def test_emd_of_large_sets_is_that_of_the_same_random_particles_of_both():
+    rng = np.random.default_rng(2)
+    truth = rng.normal(size=(60, 3))
+    pred = truth + rng.normal(scale=0.01, size=(60, 3))
+    subset = emd(truth, pred, max_points=20)
+    assert subset == emd(truth, pred, max_points=20)  # a fixed draw
+    assert emd(truth, truth, max_points=20) == pytest.approx(0.0, abs=1e-15)  # paired rows
+    assert emd(truth, pred + np.array([0.3, 0, 0.4]), max_points=20) == pytest.approx(
+        subset + 0.25, abs=0.02
+    )
+    exact = emd(truth, pred, max_points=None)
+    assert subset == pytest.approx(exact, rel=0.5)  # the same scale as all 60 particles
+    left = pred.copy()
+    left[::2] = np.nan  # particles that left the prediction are dropped after the draw
+    assert np.isfinite(emd(truth, left, max_points=20))
+    broken = truth.copy()
+    broken[59, 1] = np.nan  # a corrupted row is refused even when it is not drawn
+    with pytest.raises(InputError, match="only some coordinates"):
+        emd(broken, pred, max_points=20)
+
+
 @settings(max_examples=25, deadline=None)
 @given(n=st.integers(1, 9), seed=st.integers(0, 10**6))
 def test_emd_matches_brute_force_assignment(n, seed):
