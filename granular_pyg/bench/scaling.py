@@ -101,6 +101,7 @@ def run(
     the cut-off (3.75 radii, the model's 7.5 mm for 2 mm particles); the model step is
     measured once per network precision in ``precisions`` (``"32"``, ``"bf16"``)."""
     rows = []
+    precisions = tuple(str(p) for p in precisions)  # `[32,bf16]` on the command line: 32 an int
     model_sweeps = [
         (f"model step {p}" if len(precisions) > 1 else "model step", p) for p in precisions
     ]
