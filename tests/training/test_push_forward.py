@@ -198,3 +198,20 @@ def test_the_mixture_gives_each_part_its_share_and_the_rest_one_step():
 def test_shares_above_one_are_refused():
     with pytest.raises(InputError, match="together at most 1"):
         Mixture({"a": Unrolled(2, 0.7), "b": PushForward(2, 0.5)})
+
+
+def test_an_experiments_part_settings_under_another_objective_are_named():
+    """`+experiment=general_hopper objective=one_step`: the experiment's unrolled settings stay
+    without their objective; the error names the part and the override that drops it."""
+    from hydra.utils import instantiate
+
+    from granular_pyg.config import compose
+
+    cfg = compose("train", ["+experiment=general_hopper", "objective=one_step"])
+    # Hydra wraps the InputError; the command line prints it as one error line
+    with pytest.raises(Exception, match=r"objective\.parts\.unrolled.*~objective\.parts\.unrolled"):
+        instantiate(cfg.objective)
+    fixed = compose(
+        "train", ["+experiment=general_hopper", "objective=one_step", "~objective.parts.unrolled"]
+    )
+    assert isinstance(instantiate(fixed.objective).pick(torch.Generator()), OneStep)

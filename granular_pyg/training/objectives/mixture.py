@@ -29,6 +29,14 @@ class Mixture(Objective):
     def __init__(self, parts: dict[str, Objective] | None = None) -> None:
         super().__init__(1.0)
         self.parts = dict(parts or {})
+        loose = [k for k, p in self.parts.items() if not isinstance(p, Objective)]
+        if loose:
+            raise InputError(
+                f"objective.parts.{loose[0]}: settings without an objective (no _target_): "
+                "an experiment tunes this part but the chosen objective group does not have "
+                f"it; drop them with '~objective.parts.{loose[0]}' or choose an objective "
+                "that has it (objective=unrolled, push_forward)"
+            )
         total = sum(p.share for p in self.parts.values())
         if any(p.share < 0 for p in self.parts.values()) or total > 1.0 + 1e-9:
             shares = {k: p.share for k, p in self.parts.items()}
