@@ -20,11 +20,19 @@ _REMOVED = {
     ("push_forward", "unroll_noise"): False,
 }
 
+#: Options added later, with the value an older checkpoint's model had (off).
+_ADDED = {
+    ("model", "radius_feature"): False,
+    ("model", "material_features"): [],
+    ("model", "contact_feature"): False,
+}
+
 
 def migrate_config(config: dict) -> dict:
     """A copy of a checkpoint's resolved training config with today's keys.
 
-    ``data.step`` becomes ``data.frames_per_step``; the old ``push_forward`` section becomes the
+    ``data.step`` becomes ``data.frames_per_step``; model options added since are set to the
+    value that meant "off" (what the old model was); the old ``push_forward`` section becomes the
     ``objective`` (a Mixture of PushForward / Unrolled parts); keys the data module derived from
     it go; options removed because they did not help go when they were off.
 
@@ -36,6 +44,9 @@ def migrate_config(config: dict) -> dict:
     if "step" in data:
         data["frames_per_step"] = data.pop("step")
     data.setdefault("noise_target", "velocity")
+    if "model" in cfg:
+        for (section, key), off in _ADDED.items():
+            cfg[section].setdefault(key, copy.deepcopy(off))
     for section, key in (("data", "push_forward_steps"), ("data", "unroll_steps")):
         cfg.get(section, {}).pop(key, None)
     for (section, key), off in _REMOVED.items():
