@@ -358,7 +358,7 @@ class LearnedSimulator(nn.Module):
 
         Returns:
             A Data with ``x [N + W, 3H + 8 + P]`` (``P`` property columns, 0 by default),
-            ``edge_index [2, E]``, ``edge_attr [E, 4]``,
+            ``edge_index [2, E]``, ``edge_attr [E, 4]`` (5 with ``contact_feature``),
             ``is_wall [N + W]`` and ``num_real = N``, ready to batch.
         """
         check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS))
