@@ -306,14 +306,13 @@ class LearnedSimulator(nn.Module):
         if not self.uses_props:
             return
         if props is None:
-            options = (
-                (["model.radius_feature=true"] if self.radius_feature else [])
-                + (["model.contact_feature=true"] if self.contact_feature else [])
-            ) + (
-                [f"model.material_features={list(self.material_features)}"]
-                if self.material_features
-                else []
-            )
+            options = [
+                f"model.{name}=true"
+                for name in ("radius_feature", "contact_feature")
+                if getattr(self, name)
+            ]
+            if self.material_features:
+                options.append(f"model.material_features={list(self.material_features)}")
             raise InputError(
                 f"props: this model was built with {' and '.join(options)}, so its features "
                 "need the particles' radii and the scene's materials; pass "

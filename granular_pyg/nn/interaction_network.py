@@ -8,7 +8,7 @@ from torch import Tensor
 from torch_geometric.nn import MessagePassing
 
 from granular_pyg.errors import InputError
-from granular_pyg.nn.mlp import MLP, _check_int, blocked_inference, row_chunks
+from granular_pyg.nn.mlp import MLP, _check_int, blocked_inference, fill_by_blocks, row_chunks
 
 __all__ = ["AGGREGATIONS", "InteractionNetwork"]
 
@@ -126,10 +126,7 @@ class InteractionNetwork(MessagePassing):
 
         if not blocked_inference(x.shape[0]):
             return block(slice(None))
-        out = torch.empty_like(x)
-        for rows in row_chunks(x.shape[0]):
-            out[rows] = block(rows)
-        return out
+        return fill_by_blocks(torch.empty_like(x), block)
 
     def update_edges(
         self, x: Tensor, edge_index: Tensor, edge_attr: Tensor, overwrite: bool = False
@@ -163,10 +160,7 @@ class InteractionNetwork(MessagePassing):
 
         if not blocked_inference(edge_attr.shape[0]):
             return block(slice(None))
-        out = edge_attr if overwrite else torch.empty_like(edge_attr)
-        for rows in row_chunks(edge_attr.shape[0]):
-            out[rows] = block(rows)
-        return out
+        return fill_by_blocks(edge_attr if overwrite else torch.empty_like(edge_attr), block)
 
     def edge_messages(self, edge_index: Tensor, edge_attr: Tensor, num_nodes: int) -> Tensor:
         """What each edge sends to its target before aggregation: here ``e'_ij`` itself.

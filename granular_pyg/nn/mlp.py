@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from torch import Tensor, nn
 
 from granular_pyg.errors import InputError
 
-__all__ = ["MLP", "ROW_CHUNK", "row_chunks"]
+__all__ = ["MLP", "ROW_CHUNK", "fill_by_blocks", "row_chunks"]
 
 #: Rows per block of the blocked inference path: 4,096 rows of 128 float32 are 2 MiB, so a
 #: block's hidden activations stay in a core's L2 cache instead of streaming through memory.
@@ -26,7 +28,15 @@ def blocked_inference(rows: int) -> bool:
     return rows > ROW_CHUNK and not torch.is_grad_enabled()
 
 
-def storage_dtype(x: Tensor) -> torch.dtype:
+def fill_by_blocks(out: Tensor, block: Callable[[slice], Tensor]) -> Tensor:
+    """Write ``block(rows)`` (``[rows, *]``) into ``out[rows]`` for each block of rows of
+    ``out [R, *]`` (:func:`row_chunks`); returns ``out``, now filled."""
+    for rows in row_chunks(out.shape[0]):
+        out[rows] = block(rows)
+    return out
+
+
+def _storage_dtype(x: Tensor) -> torch.dtype:
     """The autocast dtype of ``x``'s device when autocast is on there, else ``x.dtype``."""
     device = x.device.type
     return torch.get_autocast_dtype(device) if torch.is_autocast_enabled(device) else x.dtype
@@ -93,11 +103,9 @@ class MLP(nn.Sequential):
         largest buffer, the edge latents)."""
         if x.dim() != 2 or not blocked_inference(x.shape[0]):
             return super().forward(x)
-        dtype = storage_dtype(x) if store_in_autocast_dtype else x.dtype
+        dtype = _storage_dtype(x) if store_in_autocast_dtype else x.dtype
         out = x.new_empty(x.shape[0], self.out_dim, dtype=dtype)
-        for rows in row_chunks(x.shape[0]):
-            out[rows] = self.run_block(x[rows])
-        return out
+        return fill_by_blocks(out, lambda rows: self.run_block(x[rows]))
 
     def run_block(self, h: Tensor, start: int = 0) -> Tensor:
         """The layers from index ``start`` on, over one block of rows (ReLU in place when no

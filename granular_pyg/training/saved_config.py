@@ -44,8 +44,8 @@ def migrate_config(config: dict) -> dict:
     if "step" in data:
         data["frames_per_step"] = data.pop("step")
     data.setdefault("noise_target", "velocity")
-    if "model" in cfg:
-        for (section, key), off in _ADDED.items():
+    for (section, key), off in _ADDED.items():
+        if section in cfg:
             cfg[section].setdefault(key, copy.deepcopy(off))
     for section, key in (("data", "push_forward_steps"), ("data", "unroll_steps")):
         cfg.get(section, {}).pop(key, None)

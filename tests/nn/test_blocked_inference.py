@@ -22,6 +22,19 @@ def _graph(num_nodes=40, num_edges=333, seed=0):
     return x, edge_index, edge_attr
 
 
+def test_fill_by_blocks_writes_each_block_of_rows_once(monkeypatch):
+    monkeypatch.setattr(mlp_module, "ROW_CHUNK", 4)
+    seen = []
+
+    def block(rows):
+        seen.append((rows.start, rows.stop))
+        return torch.arange(rows.start, rows.stop, dtype=torch.float32).unsqueeze(1).repeat(1, 2)
+
+    out = mlp_module.fill_by_blocks(torch.full((10, 2), -1.0), block)
+    assert seen == [(0, 4), (4, 8), (8, 10)]
+    assert torch.equal(out, torch.arange(10.0).unsqueeze(1).repeat(1, 2))
+
+
 def test_row_chunks_cover_every_row_once():
     for rows, chunk in [(0, 4), (1, 4), (8, 4), (9, 4), (10, 3)]:
         covered = [i for s in row_chunks(rows, chunk) for i in range(rows)[s]]
