@@ -20,7 +20,7 @@ from granular_pyg.data import load_split
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
-from granular_pyg.evaluation.report import EvaluatedRollout
+from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, file_label
 from granular_pyg.inference import (
     load_simulator,
     matching_frames,
@@ -51,8 +51,15 @@ def evaluate(cfg: DictConfig) -> Path:
     sample = cfg.sample if cfg.root or cfg.sample else data.get("sample")
     out = Path(cfg.out)
     rollouts = []
-    for split, files in selected_files(cfg, root, sample).items():
-        for file in files[: cfg.max_trajectories]:
+    selected = {
+        split: files[: cfg.max_trajectories]
+        for split, files in selected_files(cfg, root, sample).items()
+    }
+    every = [file for files in selected.values() for file in files]
+    names = dict(zip(every, distinct_names(every), strict=True))  # families share file names
+    for split, files in selected.items():
+        for file in files:
+            label = f"{split}_{file_label(names[file])}"
             truth = read_trajectory(file)
             warn_outside_training(config, truth, str(file))
             pred = rollout_trajectory(
@@ -64,7 +71,7 @@ def evaluate(cfg: DictConfig) -> Path:
                 wall_guard=cfg.wall_guard,
                 precision=str(cfg.get("precision", "32")),
             )
-            pred_file = out / "rollouts" / f"{split}_{file.stem}.h5"
+            pred_file = out / "rollouts" / f"{label}.h5"
             pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(file)}
             write_trajectory(pred, pred_file)
             evaluation = evaluate_pair(truth, pred)
@@ -73,14 +80,14 @@ def evaluate(cfg: DictConfig) -> Path:
                 evaluation.scalars["wall_guard_corrections"] = corrections
             if len(rollouts) < cfg.paraview:
                 pvd = export_paraview(
-                    out / "paraview" / f"{split}_{file.stem}",
+                    out / "paraview" / label,
                     {"truth": _at_rollout_frames(truth, pred), "prediction": pred},
                     every=cfg.paraview_every,
                     progress=cfg.progress,
                 )
                 print(f"ParaView: {pvd}")
             rollouts.append(
-                EvaluatedRollout(split, file.name, str(file), str(pred_file), evaluation)
+                EvaluatedRollout(split, names[file], str(file), str(pred_file), evaluation)
             )
     info = {
         "variant": VARIANTS.get(

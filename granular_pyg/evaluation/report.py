@@ -16,7 +16,7 @@ from granular_pyg.evaluation.figures import comparison_figure
 from granular_pyg.evaluation.pair import PairEvaluation
 from granular_pyg.io import atomic_write, markdown_table
 
-__all__ = ["EvaluatedRollout", "write_evaluation"]
+__all__ = ["EvaluatedRollout", "distinct_names", "file_label", "write_evaluation"]
 
 #: Scalars the report's table shows, with their units.
 HEADLINE = {
@@ -37,6 +37,26 @@ HEADLINE = {
     "leaked_particles": "",
     "crushed_particles": "",
 }
+
+
+def distinct_names(files: list[Path]) -> list[str]:
+    """Each file's shortest trailing path that no other file of ``files`` ends in: the file
+    name, or ``cone/traj_0011.h5`` where several families have a ``traj_0011.h5``."""
+    parts = [Path(f).parts for f in files]
+    names = []
+    for own in parts:
+        depth = 1
+        while depth < len(own) and any(
+            other != own and other[-depth:] == own[-depth:] for other in parts
+        ):
+            depth += 1
+        names.append("/".join(own[-depth:]))
+    return names
+
+
+def file_label(name: str) -> str:
+    """A trajectory name as a file-name stem: ``cone/traj_0011.h5`` -> ``cone-traj_0011``."""
+    return str(Path(name).with_suffix("")).replace("/", "-")
 
 
 @dataclass
@@ -104,7 +124,7 @@ def write_evaluation(out_dir: str | Path, rollouts: list[EvaluatedRollout], info
     writer = _tensorboard(out)
     for i, r in enumerate(rollouts):
         fig = comparison_figure(r.evaluation, f"{r.split} / {r.name}: LIGGGHTS (solid) vs learned")
-        path = out / "figures" / f"{r.split}_{Path(r.name).stem}.png"
+        path = out / "figures" / f"{r.split}_{file_label(r.name)}.png"
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=100)
         with atomic_write(path, "wb") as fh:
