@@ -1,11 +1,12 @@
 """Geometry core: point-triangle distances, wall normals, the wall index (culling), segment
-crossings and per-particle selection over pair lists."""
+crossings, per-particle selection over pair lists and the merging of coplanar wall contacts."""
 
 from granular_pyg.geometry.closest_point import (
     closest_point_on_segments,
     closest_point_on_triangles,
     triangle_regions,
 )
+from granular_pyg.geometry.coplanar import coplanar_redundant
 from granular_pyg.geometry.crossing import SegmentCrossings, segment_triangle_crossings
 from granular_pyg.geometry.grouping import argmin_per_group
 from granular_pyg.geometry.normals import canonical_normals, orientation_key, triangle_normals
@@ -19,6 +20,7 @@ __all__ = [
     "argmin_per_group",
     "canonical_normals",
     "closest_point_on_segments",
+    "coplanar_redundant",
     "closest_point_on_triangles",
     "dense_wall_pairs",
     "orientation_key",
