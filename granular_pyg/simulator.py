@@ -181,9 +181,6 @@ class LearnedSimulator(nn.Module):
             (keys of :data:`MATERIAL_FEATURES`, scaled by it), the same on every node.
         contact_feature: one more edge input: the edge's length over its contact distance
             (the two radii summed; a wall node's radius 0), 1 at contact for any particle size.
-        wall_merge_tolerance: leave out a particle's wall node that lies within this fraction
-            of the cut-off of a closer node's plane (one node per plane of a finely triangulated
-            wall; :class:`~granular_pyg.transforms.AddWallNodes`); None: one per triangle.
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
@@ -208,7 +205,6 @@ class LearnedSimulator(nn.Module):
         radius_feature: bool = False,
         material_features: Iterable[str] = (),
         contact_feature: bool = False,
-        wall_merge_tolerance: float | None = None,
     ) -> None:
         super().__init__()
         if history < 1:
@@ -239,13 +235,7 @@ class LearnedSimulator(nn.Module):
         self.radius_feature, self.material_features = radius_feature, names
         self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
-        if wall_merge_tolerance is not None and not 0 <= wall_merge_tolerance <= 1:
-            raise InputError(
-                "model.wall_merge_tolerance: expected a fraction of the cut-off in [0, 1] or "
-                f"null, got {wall_merge_tolerance!r}"
-            )
-        merge = None if wall_merge_tolerance is None else wall_merge_tolerance * self.radius
-        self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight, merge)
+        self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight)
         node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES
         node_in += int(self.radius_feature) + len(self.material_features)
         edge_in = NUM_EDGE_FEATURES + int(self.contact_feature)

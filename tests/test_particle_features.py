@@ -205,13 +205,11 @@ def test_the_encoder_input_grows_by_the_columns():
 @pytest.mark.parametrize(
     "options",
     [{"material_features": ["stiffness"]}, {"material_features": ["friction", "friction"]},
-     {"radius_feature": "yes"}, {"contact_feature": 1}, {"wall_merge_tolerance": -0.1},
-     {"wall_merge_tolerance": 2.0}],
+     {"radius_feature": "yes"}, {"contact_feature": 1}],
 )  # fmt: skip
 def test_bad_options_are_refused(options):
     with pytest.raises(
-        InputError,
-        match=r"model\.(material_features|radius_feature|contact_feature|wall_merge_tolerance)",
+        InputError, match=r"model\.(material_features|radius_feature|contact_feature)"
     ):
         _model(**options)
 

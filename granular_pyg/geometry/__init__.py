@@ -1,12 +1,11 @@
 """Geometry core: point-triangle distances, wall normals, the wall index (culling), segment
-crossings, per-particle selection over pair lists and the merging of coplanar wall contacts."""
+crossings and per-particle selection over pair lists."""
 
 from granular_pyg.geometry.closest_point import (
     closest_point_on_segments,
     closest_point_on_triangles,
     triangle_regions,
 )
-from granular_pyg.geometry.coplanar import coplanar_redundant
 from granular_pyg.geometry.crossing import SegmentCrossings, segment_triangle_crossings
 from granular_pyg.geometry.grouping import argmin_per_group
 from granular_pyg.geometry.normals import canonical_normals, orientation_key, triangle_normals
@@ -20,7 +19,6 @@ __all__ = [
     "argmin_per_group",
     "canonical_normals",
     "closest_point_on_segments",
-    "coplanar_redundant",
     "closest_point_on_triangles",
     "dense_wall_pairs",
     "orientation_key",

@@ -7,7 +7,7 @@ from torch_geometric.data import Data
 from torch_geometric.transforms import BaseTransform
 
 from granular_pyg.errors import InputError
-from granular_pyg.geometry import canonical_normals, coplanar_redundant
+from granular_pyg.geometry import canonical_normals
 
 __all__ = ["NORMAL_VARIANTS", "AddWallNodes"]
 
@@ -40,18 +40,13 @@ class AddWallNodes(BaseTransform):
       particle's wall-node count when ``wall_weight`` (BGNN), else 1;
     - ``wall_tri [W]`` the triangle of each wall node (global index in the WallSet).
 
-    No wall node is added when no triangle is within ``radius``. With ``merge_tolerance``, a
-    particle's node whose point lies within that distance of the plane of a closer node of the
-    same particle is left out (:func:`~granular_pyg.geometry.coplanar_redundant`): one node per
-    plane, however finely the wall is triangulated.
+    No wall node is added when no triangle is within ``radius``.
 
     Args:
         radius: cut-off (m).
         normals: ``"none"``, ``"single"`` or ``"both"``.
         normal_scale: factor on the normal features.
         wall_weight: weight a particle's ``k`` wall nodes by ``1 / k``.
-        merge_tolerance: distance (m) from a closer node's plane within which a node is left
-            out; None: one node per triangle (the paper).
     """
 
     def __init__(
@@ -60,7 +55,6 @@ class AddWallNodes(BaseTransform):
         normals: str = "both",
         normal_scale: float = 1.0,
         wall_weight: bool = False,
-        merge_tolerance: float | None = None,
     ) -> None:
         if normals not in NORMAL_VARIANTS:
             raise InputError(f"normals: expected one of {NORMAL_VARIANTS}, got {normals!r}")
@@ -70,11 +64,6 @@ class AddWallNodes(BaseTransform):
         self.normals = normals
         self.normal_scale = float(normal_scale)
         self.wall_weight = bool(wall_weight)
-        if merge_tolerance is not None and not merge_tolerance >= 0:
-            raise InputError(
-                f"merge_tolerance: expected a distance >= 0 (m) or None, got {merge_tolerance!r}"
-            )
-        self.merge_tolerance = merge_tolerance
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(radius={self.radius}, normals={self.normals})"
@@ -83,11 +72,6 @@ class AddWallNodes(BaseTransform):
         pos = data.pos
         num_real = pos.shape[0]
         contacts = data.walls.contacts(pos, self.radius, float(data.time))
-        if self.merge_tolerance is not None:
-            drop = coplanar_redundant(
-                pos, contacts.point_idx, contacts.closest, contacts.normal, self.merge_tolerance
-            )
-            contacts = type(contacts)(*(col[~drop] for col in contacts))
         num_wall = contacts.point_idx.shape[0]
         if self.normals == "none":
             feat = pos.new_zeros((num_wall, 6))

@@ -118,20 +118,6 @@ def test_wall_node_features_per_variant_and_the_one_over_k_weight():
     np.testing.assert_array_equal(out["both"].edge_index[1].numpy(), np.zeros(k, dtype=int))
 
 
-def test_merging_keeps_the_closest_node_and_one_per_plane():
-    walls = WallSet(make_hopper())
-    corner = torch.tensor([[0.0095, 0.0145, 0.0008]])  # near the lid, an incline and a side wall
-    every = AddWallNodes(0.003)(Data(pos=corner, walls=walls, time=0.0))
-    merged = AddWallNodes(0.003, merge_tolerance=1e-6)(Data(pos=corner, walls=walls, time=0.0))
-    dist = lambda d: (d.pos[1:] - corner).norm(dim=1)  # noqa: E731
-    assert 3 <= merged.is_wall.sum() < every.is_wall.sum()
-    assert dist(merged).min() == dist(every).min()
-    normals = merged.normal_feat[1:, :3]
-    cos = (normals @ normals.T).abs() - torch.eye(len(normals))
-    assert (cos < 1 - 1e-9).all()  # no two kept nodes on one plane
-    assert merged.edge_index.shape[1] == merged.is_wall.sum()
-
-
 def test_removed_lid_gives_no_wall_nodes_after_t_open():
     scene = make_hopper(t_open=0.05)
     walls = WallSet(scene)
@@ -144,7 +130,5 @@ def test_removed_lid_gives_no_wall_nodes_after_t_open():
 def test_bad_settings_are_named():
     with pytest.raises(InputError, match="normals"):
         AddWallNodes(0.01, normals="double")
-    with pytest.raises(InputError, match="merge_tolerance"):
-        AddWallNodes(0.01, merge_tolerance=-1.0)
     with pytest.raises(InputError, match="std"):
         AddRandomWalkNoise(-1.0)
