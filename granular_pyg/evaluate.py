@@ -20,7 +20,7 @@ from granular_pyg.data import load_split
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
-from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, file_label
+from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, rollout_label
 from granular_pyg.inference import (
     load_simulator,
     matching_frames,
@@ -59,7 +59,7 @@ def evaluate(cfg: DictConfig) -> Path:
     names = dict(zip(every, distinct_names(every), strict=True))  # families share file names
     for split, files in selected.items():
         for file in files:
-            label = f"{split}_{file_label(names[file])}"
+            label = rollout_label(split, names[file])
             truth = read_trajectory(file)
             warn_outside_training(config, truth, str(file))
             pred = rollout_trajectory(

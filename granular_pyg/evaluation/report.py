@@ -16,7 +16,7 @@ from granular_pyg.evaluation.figures import comparison_figure
 from granular_pyg.evaluation.pair import PairEvaluation
 from granular_pyg.io import atomic_write, markdown_table
 
-__all__ = ["EvaluatedRollout", "distinct_names", "file_label", "write_evaluation"]
+__all__ = ["EvaluatedRollout", "distinct_names", "rollout_label", "write_evaluation"]
 
 #: Scalars the report's table shows, with their units.
 HEADLINE = {
@@ -54,9 +54,10 @@ def distinct_names(files: list[Path]) -> list[str]:
     return names
 
 
-def file_label(name: str) -> str:
-    """A trajectory name as a file-name stem: ``cone/traj_0011.h5`` -> ``cone-traj_0011``."""
-    return str(Path(name).with_suffix("")).replace("/", "-")
+def rollout_label(split: str, name: str) -> str:
+    """The file-name stem of a rollout and its figure: split ``test``, trajectory
+    ``cone/traj_0011.h5`` -> ``test_cone-traj_0011``."""
+    return f"{split}_{str(Path(name).with_suffix('')).replace('/', '-')}"
 
 
 @dataclass
@@ -124,7 +125,7 @@ def write_evaluation(out_dir: str | Path, rollouts: list[EvaluatedRollout], info
     writer = _tensorboard(out)
     for i, r in enumerate(rollouts):
         fig = comparison_figure(r.evaluation, f"{r.split} / {r.name}: LIGGGHTS (solid) vs learned")
-        path = out / "figures" / f"{r.split}_{file_label(r.name)}.png"
+        path = out / "figures" / f"{rollout_label(r.split, r.name)}.png"
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=100)
         with atomic_write(path, "wb") as fh:

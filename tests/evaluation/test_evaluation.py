@@ -17,7 +17,7 @@ from granular_pyg.evaluation import evaluate_pair, variant_table, write_evaluati
 from granular_pyg.evaluation.compare import write_variant_figures
 from granular_pyg.evaluation.figures import variants_figure
 from granular_pyg.evaluation.pair import MIXING_TIME_S
-from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, file_label
+from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, rollout_label
 from granular_pyg.io import read_trajectory, write_trajectory
 from granular_pyg.samples import sample_files
 
@@ -333,10 +333,10 @@ def test_the_hopper_outlet_height_comes_from_its_params(hopper):
 def test_trajectories_of_several_families_keep_distinct_names_and_files():
     files = [Path("data/h/cone/traj_0011.h5"), Path("data/h/silo/traj_0011.h5"), Path("x/t_2.h5")]
     assert distinct_names(files) == ["cone/traj_0011.h5", "silo/traj_0011.h5", "t_2.h5"]
-    assert [file_label(n) for n in distinct_names(files)] == [
-        "cone-traj_0011",
-        "silo-traj_0011",
-        "t_2",
+    assert [rollout_label("test", n) for n in distinct_names(files)] == [
+        "test_cone-traj_0011",
+        "test_silo-traj_0011",
+        "test_t_2",
     ]
     # the same name in folders that differ only higher up: as many parts as it takes
     assert distinct_names([Path("a/x/t.h5"), Path("b/x/t.h5")]) == ["a/x/t.h5", "b/x/t.h5"]
