@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import glob
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
 from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, rollout_label
 from granular_pyg.inference import (
+    initial_frames,
     load_simulator,
     matching_frames,
     rollout_trajectory,
@@ -65,7 +67,7 @@ def evaluate(cfg: DictConfig) -> Path:
             pred = rollout_trajectory(
                 sim,
                 truth,
-                cfg.steps,
+                _steps_within(cfg.steps, sim, truth, str(file)),
                 progress=cfg.progress,
                 skin=cfg.skin,
                 wall_guard=cfg.wall_guard,
@@ -105,6 +107,21 @@ def evaluate(cfg: DictConfig) -> Path:
         print(f"{split}: {shown}")
     print(f"report: {report}")
     return report
+
+
+def _steps_within(steps: int | None, sim, truth: Trajectory, name: str) -> int | None:
+    """``steps``, or the learned steps ``truth`` has frames for where it asks for more (with a
+    warning): a rollout past the ground truth's end has nothing to be compared with."""
+    k, initial = initial_frames(sim, truth)
+    available = (truth.num_frames - 1 - int(initial[-1])) // k
+    if steps is not None and int(steps) > available:
+        print(
+            f"warning: {name}: steps={steps} runs past its last frame; evaluating the "
+            f"{available} learned steps it has frames for",
+            file=sys.stderr,
+        )
+        return available
+    return steps
 
 
 def selected_files(cfg: DictConfig, root: str | None, sample: str | None) -> dict[str, list[Path]]:

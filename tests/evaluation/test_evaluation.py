@@ -340,3 +340,18 @@ def test_trajectories_of_several_families_keep_distinct_names_and_files():
     ]
     # the same name in folders that differ only higher up: as many parts as it takes
     assert distinct_names([Path("a/x/t.h5"), Path("b/x/t.h5")]) == ["a/x/t.h5", "b/x/t.h5"]
+
+
+def test_evaluate_runs_no_further_than_the_ground_truth_with_a_warning(hopper, capsys):
+    from granular_pyg.evaluate import _steps_within
+    from granular_pyg.inference import initial_frames, load_simulator
+
+    sim, _ = load_simulator("pretrained:hopper")
+    k, initial = initial_frames(sim, hopper)
+    available = (hopper.num_frames - 1 - int(initial[-1])) // k
+    assert available > 0
+    assert _steps_within(available + 7, sim, hopper, "bundled") == available
+    assert "runs past its last frame" in capsys.readouterr().err
+    assert _steps_within(available, sim, hopper, "bundled") == available
+    assert _steps_within(None, sim, hopper, "bundled") is None
+    assert capsys.readouterr().err == ""
