@@ -18,7 +18,7 @@ from omegaconf import DictConfig
 
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
-from granular_pyg.errors import InputError
+from granular_pyg.errors import InputError, whole_number
 from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
 from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, rollout_label
@@ -58,6 +58,7 @@ def evaluate(cfg: DictConfig) -> Path:
         for split, files in selected_files(cfg, root, sample).items()
     }
     every = [file for files in selected.values() for file in files]
+    start_frame = whole_number("start_frame", cfg.get("start_frame", 0))
     names = dict(zip(every, distinct_names(every), strict=True))  # families share file names
     for split, files in selected.items():
         for file in files:
@@ -67,11 +68,12 @@ def evaluate(cfg: DictConfig) -> Path:
             pred = rollout_trajectory(
                 sim,
                 truth,
-                _steps_within(cfg.steps, sim, truth, str(file)),
+                _steps_within(cfg.steps, sim, truth, str(file), start_frame),
                 progress=cfg.progress,
                 skin=cfg.skin,
                 wall_guard=cfg.wall_guard,
                 precision=str(cfg.get("precision", "32")),
+                start_frame=start_frame,
             )
             pred_file = out / "rollouts" / f"{label}.h5"
             pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(file)}
@@ -109,10 +111,12 @@ def evaluate(cfg: DictConfig) -> Path:
     return report
 
 
-def _steps_within(steps: int | None, sim, truth: Trajectory, name: str) -> int | None:
+def _steps_within(
+    steps: int | None, sim, truth: Trajectory, name: str, start_frame: int = 0
+) -> int | None:
     """``steps``, or the learned steps ``truth`` has frames for where it asks for more (with a
     warning): a rollout past the ground truth's end has nothing to be compared with."""
-    k, initial = initial_frames(sim, truth)
+    k, initial = initial_frames(sim, truth, start_frame)
     available = (truth.num_frames - 1 - int(initial[-1])) // k
     if steps is not None and int(steps) > available:
         print(

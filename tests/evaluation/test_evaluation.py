@@ -355,3 +355,6 @@ def test_evaluate_runs_no_further_than_the_ground_truth_with_a_warning(hopper, c
     assert _steps_within(available, sim, hopper, "bundled") == available
     assert _steps_within(None, sim, hopper, "bundled") is None
     assert capsys.readouterr().err == ""
+    # a later start leaves k fewer frames per k frames skipped
+    assert _steps_within(available, sim, hopper, "bundled", start_frame=2 * k) == available - 2
+    assert "runs past its last frame" in capsys.readouterr().err
