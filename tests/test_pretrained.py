@@ -19,22 +19,30 @@ from granular_pyg.pretrained.export import MAX_BYTES, export
 from granular_pyg.samples import sample_files
 
 
-@pytest.mark.parametrize("name", ["hopper", "drum"])
+#: Each shipped model and the bundled sample it is tested on.
+SAMPLE = {"hopper": "hopper", "drum": "drum", "fast_hopper": "hopper"}
+
+
+def test_every_shipped_model_is_tested():
+    assert set(SAMPLE) == set(PRETRAINED)
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLE))
 def test_each_shipped_model_is_small_and_rolls_out_its_bundled_test_trajectory(name):
     path = resolve_checkpoint(f"pretrained:{name}")
     assert path.stat().st_size <= MAX_BYTES
     sim, config = load_simulator(f"pretrained:{name}")
-    assert config["model"]["normals"] == "both" and config["data"]["sample"] == name
-    truth = read_trajectory(sample_files(name, "test")[0])
+    assert config["model"]["normals"] == "both" and config["data"]["sample"] == SAMPLE[name]
+    truth = read_trajectory(sample_files(SAMPLE[name], "test")[0])
     pred = rollout_trajectory(sim, truth, steps=3, progress=False)
     assert pred.num_frames == sim.history + 1 + 3
     present = int(np.isfinite(pred.positions[-1]).all(axis=1).sum())
     # the hopper discharges through its outflow; the closed drum keeps every particle
-    assert present == truth.num_particles if name == "drum" else present > 0
+    assert present == truth.num_particles if SAMPLE[name] == "drum" else present > 0
 
 
 def test_unknown_pretrained_name_lists_the_available_ones():
-    with pytest.raises(InputError, match=r"available: pretrained:drum, pretrained:hopper"):
+    with pytest.raises(InputError, match=r"available: pretrained:drum, pretrained:fast_hopper, pretrained:hopper"):
         resolve_checkpoint("pretrained:silo")
     assert str(resolve_checkpoint("runs/x/last.ckpt")) == "runs/x/last.ckpt"
 
@@ -61,12 +69,12 @@ def test_export_keeps_config_and_weights_only(tmp_path):
         assert torch.equal(loaded.state_dict()[name], value)
 
 
-@pytest.mark.parametrize("name", ["hopper", "drum"])
+@pytest.mark.parametrize("name", sorted(SAMPLE))
 def test_the_shipped_models_roll_out_as_stored(name):
     """The shipped models give the stored rollout (4 learned steps on the bundled test
     trajectory, recorded when each model was shipped) to 1e-6 m."""
     reference = np.load(Path(__file__).parent / "data" / "pretrained_rollout_reference.npz")
     sim, _ = load_simulator(f"pretrained:{name}")
-    truth = read_trajectory(sample_files(name, "test")[0])
+    truth = read_trajectory(sample_files(SAMPLE[name], "test")[0])
     pred = rollout_trajectory(sim, truth, steps=4, progress=False)
     np.testing.assert_allclose(pred.positions[-4:], reference[name], rtol=0, atol=1e-6)

@@ -18,7 +18,11 @@ __all__ = ["PREFIX", "PRETRAINED", "resolve_checkpoint"]
 PREFIX = "pretrained:"
 
 #: name -> file in this folder.
-PRETRAINED = {"hopper": "hopper_v3.ckpt", "drum": "drum_v3.ckpt"}
+PRETRAINED = {
+    "hopper": "hopper_v3.ckpt",
+    "drum": "drum_v3.ckpt",
+    "fast_hopper": "fast_hopper_v3.ckpt",  # latent 32, k = 16: the speed model
+}
 
 
 def resolve_checkpoint(ckpt: str | Path) -> Path:
