@@ -18,7 +18,6 @@ from granular_pyg.pretrained import PRETRAINED, resolve_checkpoint
 from granular_pyg.pretrained.export import MAX_BYTES, export
 from granular_pyg.samples import sample_files
 
-
 #: Each shipped model and the bundled sample it is tested on.
 SAMPLE = {"hopper": "hopper", "drum": "drum", "fast_hopper": "hopper"}
 
@@ -42,7 +41,8 @@ def test_each_shipped_model_is_small_and_rolls_out_its_bundled_test_trajectory(n
 
 
 def test_unknown_pretrained_name_lists_the_available_ones():
-    with pytest.raises(InputError, match=r"available: pretrained:drum, pretrained:fast_hopper, pretrained:hopper"):
+    available = r"available: pretrained:drum, pretrained:fast_hopper, pretrained:hopper"
+    with pytest.raises(InputError, match=available):
         resolve_checkpoint("pretrained:silo")
     assert str(resolve_checkpoint("runs/x/last.ckpt")) == "runs/x/last.ckpt"
 
