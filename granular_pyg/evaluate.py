@@ -23,7 +23,7 @@ from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
 from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, rollout_label
 from granular_pyg.inference import (
-    initial_frames,
+    available_steps,
     load_simulator,
     matching_frames,
     rollout_trajectory,
@@ -116,8 +116,7 @@ def _steps_within(
 ) -> int | None:
     """``steps``, or the learned steps ``truth`` has frames for where it asks for more (with a
     warning): a rollout past the ground truth's end has nothing to be compared with."""
-    k, initial = initial_frames(sim, truth, start_frame)
-    available = (truth.num_frames - 1 - int(initial[-1])) // k
+    available = available_steps(sim, truth, start_frame)
     if steps is not None and int(steps) > available:
         print(
             f"warning: {name}: steps={steps} runs past its last frame; evaluating the "

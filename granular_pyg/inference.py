@@ -27,6 +27,7 @@ from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator, ParticleProps, WallGuard
 
 __all__ = [
+    "available_steps",
     "initial_frames",
     "load_simulator",
     "load_weights",
@@ -161,6 +162,13 @@ def initial_frames(
     return k, frames
 
 
+def available_steps(sim: LearnedSimulator, truth: Trajectory, start_frame: int = 0) -> int:
+    """Learned steps ``truth`` has ground-truth frames for after the initial states of a rollout
+    of ``sim`` from ``start_frame`` (:func:`initial_frames`; its errors)."""
+    k, initial = initial_frames(sim, truth, start_frame)
+    return int((truth.num_frames - 1 - initial[-1]) // k)
+
+
 def rollout_trajectory(
     sim: LearnedSimulator,
     truth: Trajectory,
@@ -205,7 +213,7 @@ def rollout_trajectory(
             Trajectory up to the failing step (metadata ``failed_step``), nothing is lost.
     """
     k, initial = initial_frames(sim, truth, start_frame)
-    available = (truth.num_frames - 1 - initial[-1]) // k
+    available = available_steps(sim, truth, start_frame)
     steps = available if steps is None else whole_number("steps", steps)
     _check_fits_in_memory(steps, truth.num_particles, dtype)
     seq = torch.from_numpy(truth.positions[initial]).to(sim.dt.device, dtype)

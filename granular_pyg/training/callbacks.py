@@ -6,7 +6,7 @@ import lightning as L
 import numpy as np
 from matplotlib.figure import Figure
 
-from granular_pyg.inference import matching_frames, rollout_trajectory, time_step_multiple
+from granular_pyg.inference import available_steps, matching_frames, rollout_trajectory
 from granular_pyg.metrics import emd, outlet_point
 
 __all__ = ["RolloutValidation", "rollout_figure"]
@@ -70,8 +70,7 @@ class RolloutValidation(L.Callback):
         sim = pl_module.sim
         was_training = sim.training
         sim.eval()
-        k = time_step_multiple(sim, traj.frame_dt)
-        available = max(0, (traj.num_frames - 1 - sim.history * k) // k)
+        available = available_steps(sim, traj)
         rollout = rollout_trajectory(sim, traj, min(self.steps, available), progress=False)
         sim.train(was_training)
         first, steps = rollout.metadata["initial_frames"], rollout.metadata["steps"]

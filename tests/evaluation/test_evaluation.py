@@ -344,12 +344,13 @@ def test_trajectories_of_several_families_keep_distinct_names_and_files():
 
 def test_evaluate_runs_no_further_than_the_ground_truth_with_a_warning(hopper, capsys):
     from granular_pyg.evaluate import _steps_within
-    from granular_pyg.inference import initial_frames, load_simulator
+    from granular_pyg.inference import available_steps, initial_frames, load_simulator
 
     sim, _ = load_simulator("pretrained:hopper")
     k, initial = initial_frames(sim, hopper)
-    available = (hopper.num_frames - 1 - int(initial[-1])) // k
-    assert available > 0
+    available = available_steps(sim, hopper)
+    # the frames left after the last initial state, in whole learned steps
+    assert available == (hopper.num_frames - 1 - int(initial[-1])) // k > 0
     assert _steps_within(available + 7, sim, hopper, "bundled") == available
     assert "runs past its last frame" in capsys.readouterr().err
     assert _steps_within(available, sim, hopper, "bundled") == available
