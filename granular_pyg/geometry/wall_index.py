@@ -6,7 +6,10 @@ triangles that can come within the query radius of any point in the cell (a cons
 exact-distance test against the cell's bounding sphere, so a large slanted triangle is listed
 only in the cells along its surface, not in its whole bounding box). A query looks up one cell
 per point, then computes exact distances for the listed candidates only: its cost grows with the
-number of near pairs, not with ``points x triangles``.
+number of near pairs, not with ``points x triangles``. Both the grid build and the query first
+drop the pairs that two cheap lower bounds on the distance already rule out (the distance to
+the triangle's plane and to its bounding sphere), so the exact closest-point test runs only on
+the pairs that may pass it.
 
 A rigidly moving mesh is queried by mapping the points into the mesh frame; the grid is never
 rebuilt. Grids are built per radius on first use and cached (a simulator uses one radius).
@@ -27,6 +30,11 @@ __all__ = ["WallIndex", "WallPairs", "dense_wall_pairs"]
 
 # Relative slack on the cell test, so float round-off never drops a true pair.
 _CELL_SLACK = 1e-6
+# A triangle whose doubled area is below this fraction of its longest edge squared is too thin
+# for its computed normal to bound the distance: its plane bound is left out (set to 0).
+_THIN = 1e-6
+# Boxes of at most this many cells stop being halved: their cells are listed and tested at once.
+_SMALL_BOX = 64
 
 
 def _check_radius(radius) -> float:
@@ -62,6 +70,39 @@ class _Grid:
     dims: tuple[int, int, int]
     cell_start: torch.Tensor  # [num_cells + 1] int64, CSR offsets into cell_tris
     cell_tris: torch.Tensor  # [E] int64 triangle ids, ascending within a cell
+
+
+@dataclass(frozen=True)
+class _Bounds:
+    """Per-triangle data of two cheap lower bounds on a point's distance to a triangle."""
+
+    normal: torch.Tensor  # [F, 3] unit normal; 0 for a thin triangle (no plane bound)
+    anchor: torch.Tensor  # [F, 3] vertex 0 (m)
+    centre: torch.Tensor  # [F, 3] centroid (m)
+    spread: torch.Tensor  # [F] largest vertex distance from the centroid (m)
+    slack: float  # m: round-off allowance of the bounds in this dtype
+
+    @classmethod
+    def of(cls, tris: torch.Tensor, dtype: torch.dtype) -> _Bounds:
+        """Bounds of ``tris [F, 3, 3]`` (float64), stored in ``dtype``."""
+        v0, v1, v2 = tris.unbind(dim=1)
+        cross = torch.linalg.cross(v1 - v0, v2 - v0)
+        area2 = torch.linalg.vector_norm(cross, dim=1, keepdim=True)
+        edge2 = torch.stack([(v1 - v0), (v2 - v1), (v0 - v2)]).square().sum(-1).amax(0)
+        usable = area2.squeeze(1) > _THIN * edge2
+        normal = torch.where(usable[:, None], cross / area2.clamp_min(1e-300), 0.0)
+        centre = tris.mean(dim=1)
+        spread = torch.linalg.vector_norm(tris - centre[:, None], dim=2).amax(dim=1)
+        scale = float(tris.abs().max()) if tris.numel() else 1.0
+        slack = 64 * torch.finfo(dtype).eps * max(scale, 1e-3)
+        return cls(normal.to(dtype), v0.to(dtype), centre.to(dtype), spread.to(dtype), slack)
+
+    def lower(self, points: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
+        """``[K]`` a lower bound (m) on the distance of ``points [K, 3]`` to triangles
+        ``tri [K]``: the larger of the plane distance and the bounding-sphere distance."""
+        plane = ((points - self.anchor[tri]) * self.normal[tri]).sum(dim=1).abs()
+        sphere = torch.linalg.vector_norm(points - self.centre[tri], dim=1) - self.spread[tri]
+        return torch.maximum(plane, sphere)
 
 
 class WallIndex:
@@ -105,6 +146,7 @@ class WallIndex:
         self.max_cells = int(max_cells)
         self._grids: dict[float, _Grid] = {}
         self._triangles_by_dtype = {vertices.dtype: self.triangles}
+        self._bounds_by_dtype: dict[torch.dtype, _Bounds] = {}
 
     @property
     def num_triangles(self) -> int:
@@ -150,6 +192,9 @@ class WallIndex:
         """
         local = self._to_mesh_frame(points, rotation, translation)
         point_idx, tri_idx = self._candidates(local, radius)
+        bounds = self._bounds_as(local.dtype)
+        maybe = bounds.lower(local[point_idx], tri_idx) < _check_radius(radius) + bounds.slack
+        point_idx, tri_idx = point_idx[maybe], tri_idx[maybe]
         closest, sq_dist = closest_point_on_triangles(
             local[point_idx], self._triangles_as(points.dtype)[tri_idx], validate=False
         )
@@ -192,6 +237,11 @@ class WallIndex:
         )
         tri_idx = grid.cell_tris[torch.repeat_interleave(start, count) + within]
         return point_idx, tri_idx
+
+    def _bounds_as(self, dtype: torch.dtype) -> _Bounds:
+        if dtype not in self._bounds_by_dtype:
+            self._bounds_by_dtype[dtype] = _Bounds.of(self.triangles.double(), dtype)
+        return self._bounds_by_dtype[dtype]
 
     def _triangles_as(self, dtype: torch.dtype) -> torch.Tensor:
         if dtype not in self._triangles_by_dtype:
@@ -254,11 +304,14 @@ class WallIndex:
 
         Any point of such a cell within ``radius`` of ``T`` makes the cell pass, so the list is
         conservative. Boxes of cells start as each triangle's bounding box expanded by the
-        radius and are halved along their longest side, keeping a half only if it may hold a
-        passing cell: a box of ``s`` cells keeps iff
+        radius and are halved along their longest side until they hold at most
+        :data:`_SMALL_BOX` cells, keeping a half only if it may hold a passing cell: a box of
+        ``s`` cells keeps iff
         :math:`d(\text{centre}, T) \le r + \tfrac{\sqrt3}{2} h + \tfrac{h}{2} |s - 1|`
-        (the farthest cell centre lies :math:`\tfrac{h}{2}|s - 1|` from the box centre). The
-        work follows the cells along the surface, not the bounding boxes' volume.
+        (the farthest cell centre lies :math:`\tfrac{h}{2}|s - 1|` from the box centre). Boxes
+        are tested with the cheap lower bounds of :class:`_Bounds`, the cells of the small boxes
+        at the end with the exact distance. The work follows the cells along the surface, not
+        the bounding boxes' volume.
 
         Returns:
             ``(cell_xyz [E, 3] int64, tri_id [E] int64)``.
@@ -267,17 +320,18 @@ class WallIndex:
         lo = torch.floor((tris.min(dim=1).values - radius - origin) / h).long()
         hi = torch.floor((tris.max(dim=1).values + radius - origin) / h).long()
         cell_reach = radius + 0.5 * math.sqrt(3.0) * h
+        bounds = self._bounds_as(torch.float64)
         while True:
             size = hi - lo + 1
             centre = origin + 0.5 * (lo + hi + 1).double() * h
-            _, sq = closest_point_on_triangles(centre, tris[tri], validate=False)
             reach = cell_reach + 0.5 * h * torch.linalg.vector_norm((size - 1).double(), dim=1)
-            keep = sq <= reach.square() * (1.0 + _CELL_SLACK)
-            tri, lo, hi, size = tri[keep], lo[keep], hi[keep], size[keep]
-            split = (size > 1).any(dim=1)
+            keep = bounds.lower(centre, tri) <= reach * (1.0 + _CELL_SLACK) + bounds.slack
+            tri, lo, size = tri[keep], lo[keep], size[keep]
+            split = size.prod(dim=1) > _SMALL_BOX
             if not bool(split.any()):
                 break
-            # Halve every box that is larger than one cell along its longest side.
+            hi = hi[keep]
+            # Halve every box of more than _SMALL_BOX cells along its longest side.
             axis = size.argmax(dim=1, keepdim=True)
             mid = lo.gather(1, axis) + size.gather(1, axis) // 2
             lo_b, hi_a = lo.clone(), hi.clone()
@@ -288,7 +342,17 @@ class WallIndex:
                 torch.cat([lo[~split], lo[split], lo_b[split]]),
                 torch.cat([hi[~split], hi_a[split], hi[split]]),
             )
-        return lo, tri
+        # Every cell of the small boxes that remain, then the exact test per cell.
+        count = size.prod(dim=1)
+        box = torch.repeat_interleave(torch.arange(len(tri), device=tris.device), count)
+        within = torch.arange(len(box), device=tris.device) - (torch.cumsum(count, 0) - count)[box]
+        sx, sy = size[box, 0], size[box, 1]
+        offset = torch.stack([within % sx, (within // sx) % sy, within // (sx * sy)], dim=1)
+        cell, tri = lo[box] + offset, tri[box]
+        centre = origin + (cell.double() + 0.5) * h
+        _, sq = closest_point_on_triangles(centre, tris[tri], validate=False)
+        keep = sq <= cell_reach**2 * (1.0 + _CELL_SLACK)
+        return cell[keep], tri[keep]
 
 
 def dense_wall_pairs(

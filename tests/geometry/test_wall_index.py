@@ -9,7 +9,13 @@ import torch
 import trimesh
 
 from granular_pyg.errors import InputError
-from granular_pyg.geometry import WallIndex, dense_wall_pairs, pose_about_axis
+from granular_pyg.geometry import (
+    WallIndex,
+    closest_point_on_triangles,
+    dense_wall_pairs,
+    pose_about_axis,
+)
+from granular_pyg.geometry.wall_index import _Bounds
 
 
 def _pair_set(point_idx, tri_idx) -> set[tuple[int, int]]:
@@ -119,6 +125,49 @@ def test_degenerate_triangles_in_the_mesh_are_handled():
     found = WallIndex(vertices, faces).pairs(points, 0.05)
     assert _pair_set(found.point_idx, found.tri_idx) == {(0, 0), (1, 0), (1, 1), (1, 2)}
     assert torch.isfinite(found.closest).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_distance_bounds_never_exceed_the_exact_distance(dtype):
+    """The cheap plane and bounding-sphere bounds that skip exact tests stay below the true
+    distance (within their stated slack), thin and degenerate triangles included."""
+    vertices, faces, points = _random_scene(9, num_points=400)
+    thin = torch.tensor([[0.0, 0, 0], [1, 0, 0], [2, 1e-9, 0], [0, 0, 0]], dtype=torch.float64)
+    tris = torch.cat([vertices[faces], thin[:3][None], thin[[0, 3, 1]][None]])
+    bounds = _Bounds.of(tris, dtype)
+    p_idx = torch.arange(len(points)).repeat_interleave(len(tris))
+    t_idx = torch.arange(len(tris)).repeat(len(points))
+    _, sq = closest_point_on_triangles(points[p_idx], tris[t_idx])
+    lower = bounds.lower(points[p_idx].to(dtype), t_idx).double()
+    assert (lower <= sq.sqrt() + bounds.slack).all()
+    assert (lower > 0.05).float().mean() > 0.5  # and they do rule out most far pairs
+
+
+def test_grid_lists_exactly_the_cells_within_reach_of_each_triangle():
+    """The grid against brute force over every cell: (cell, triangle) is listed iff the cell
+    meets the triangle's bounding box grown by the radius and its centre lies within radius +
+    half the cell diagonal of the triangle."""
+    vertices, faces, _ = _random_scene(10)
+    radius = 0.04
+    index = WallIndex(vertices, faces)
+    grid = index._grid(radius)
+    nx, ny, nz = grid.dims
+    ijk = torch.cartesian_prod(torch.arange(nx), torch.arange(ny), torch.arange(nz))
+    centre = grid.origin + (ijk.double() + 0.5) * grid.cell_size
+    reach = radius + 0.5 * math.sqrt(3.0) * grid.cell_size
+    expected = set()
+    for t in range(len(faces)):
+        tri = vertices[faces[t]]
+        lo = torch.floor((tri.min(0).values - radius - grid.origin) / grid.cell_size).long()
+        hi = torch.floor((tri.max(0).values + radius - grid.origin) / grid.cell_size).long()
+        _, sq = closest_point_on_triangles(centre, tri.expand(len(centre), 3, 3))
+        in_box = ((ijk >= lo) & (ijk <= hi)).all(dim=1)
+        cells = ijk[in_box & (sq <= reach**2)]
+        ids = cells[:, 0] + nx * (cells[:, 1] + ny * cells[:, 2])
+        expected |= {(int(c), t) for c in ids}
+    counts = grid.cell_start[1:] - grid.cell_start[:-1]
+    cell_of_entry = torch.repeat_interleave(torch.arange(len(counts)), counts)
+    assert set(zip(cell_of_entry.tolist(), grid.cell_tris.tolist(), strict=True)) == expected
 
 
 @pytest.mark.parametrize(
