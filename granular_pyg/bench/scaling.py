@@ -23,10 +23,17 @@ from granular_pyg.bench.report import SuiteResult
 
 
 def _measure(
-    kind: str, particles: int, triangles: int, radius: float, repeats: int, precision: str = "32"
+    kind: str,
+    particles: int,
+    triangles: int,
+    radius: float,
+    repeats: int,
+    precision: str = "32",
+    model_overrides: tuple[str, ...] = (),
 ) -> dict:
     """One measurement, run in a child process; returns seconds and peak RSS (MiB).
-    ``precision`` is the network's for a model step (``"32"`` or ``"bf16"``)."""
+    ``precision`` is the network's for a model step (``"32"`` or ``"bf16"``);
+    ``model_overrides`` are Hydra overrides of the training config's model."""
     from hydra.utils import instantiate
 
     from granular_pyg.bench.meshes import funnel_mesh, packed_particles
@@ -64,9 +71,11 @@ def _measure(
                 ParticleSpec(count=particles, radius=radius, fill_lo=(0, 0, 0), fill_hi=(1, 1, 1)),
             )
             walls = WallSet(scene)
-            sim = instantiate(compose("train", [f"model.radius={cutoff}"]).model).eval()
+            overrides = [f"model.radius={cutoff}", *model_overrides]
+            sim = instantiate(compose("train", overrides).model).eval()
             sim.set_network_precision(precision)
             out["precision"] = precision
+            out["parameters"] = sum(p.numel() for p in sim.parameters())
             seq = pos[:, None].repeat(1, sim.history + 1, 1)
             graph = sim.build_graph(seq, walls, 0.0)
             out["seconds"] = time_call(lambda: sim(sim.build_graph(seq, walls, 0.0)), repeats)
@@ -96,10 +105,13 @@ def run(
     particle_radius: float = 0.0006,
     repeats: int = 3,
     precisions: tuple[str, ...] = ("32",),
+    model_overrides: tuple[str, ...] = (),
 ) -> SuiteResult:
     """Run the suite; see the module docstring. ``particle_radius`` (m) sets the packing and
     the cut-off (3.75 radii, the model's 7.5 mm for 2 mm particles); the model step is
-    measured once per network precision in ``precisions`` (``"32"``, ``"bf16"``)."""
+    measured once per network precision in ``precisions`` (``"32"``, ``"bf16"``), for the
+    default model changed by ``model_overrides`` (e.g. ``["model.latent=32"]``)."""
+    model_overrides = tuple(str(o) for o in model_overrides)
     rows = []
     precisions = tuple(str(p) for p in precisions)  # `[32,bf16]` on the command line: 32 an int
     model_sweeps = [
@@ -118,7 +130,7 @@ def run(
         measured = []
         for n, t in sizes:
             what = "graph" if kind == "graph" else "model"
-            row = _in_child(what, n, t, particle_radius, repeats, precision)
+            row = _in_child(what, n, t, particle_radius, repeats, precision, model_overrides)
             measured.append(row | {"what": kind, "against": axis})
         xs = [r[axis] for r in measured]
         b = _exponent(xs, [r["seconds"] for r in measured])
@@ -129,11 +141,12 @@ def run(
         results[f"scaling/{kind}/{axis}/peak_rss_mib_max"] = max(
             r["peak_rss_mib"] for r in measured
         )
+    changed = f" with {', '.join(model_overrides)}" if model_overrides else ""
     notes = (
         f"Bench funnel (`bench.meshes`), particles of radius {particle_radius * 1e3:g} mm packed "
         f"on a jittered lattice, cut-off {3.75 * particle_radius * 1e3:g} mm; graph = radius "
         "graph + wall pairs (WallIndex); model step = build_graph + forward of the default v3 "
-        "model (bgnn, latent 128). Each size in a fresh process (peak RSS its own)."
+        f"model (bgnn, latent 128){changed}. Each size in a fresh process (peak RSS its own)."
     )
     return SuiteResult(rows, results, [], _figure(rows), notes)
 

@@ -18,3 +18,10 @@ def test_a_model_step_measurement_names_its_precision_and_graph(precision):
     assert row["precision"] == precision
     assert row["particles"] == 300 and row["edges"] > 300 and row["seconds"] > 0
     assert row["peak_rss_mib"] >= row["extra_rss_mib"] >= 0
+
+
+def test_model_overrides_change_the_measured_model():
+    default = _measure("model", 300, 100, 0.0006, 1)
+    narrow = _measure("model", 300, 100, 0.0006, 1, "32", ("model.latent=32",))
+    assert narrow["parameters"] < default["parameters"] / 8  # latent 128 -> 32: about 1/16
+    assert narrow["edges"] == default["edges"]  # the same graph
