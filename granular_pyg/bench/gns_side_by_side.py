@@ -3,7 +3,7 @@ simulator and of geoelements/gns (a PyTorch + PyG GNS whose walls are kinematic 
 by side on the same bundled-hopper windows at matched size::
 
     python -m granular_pyg.bench.gns_side_by_side --gns /tmp/gns [--steps 5] [--threads 2] \\
-        [--out outputs/gns_side_by_side]
+        [--precision 32|bf16] [--out outputs/gns_side_by_side]
 
 ``--gns`` is a checkout of https://github.com/geoelements/gns (the folder holding ``gns/``); its
 code is imported from there (``sys.path``), never copied here. It needs, besides torch and
@@ -496,6 +496,7 @@ def _ours_child(
     steps: int,
     warmup: int,
     threads: int,
+    precision: str,
     turns: _Turns,
     me: int,
 ) -> dict:
@@ -530,7 +531,8 @@ def _ours_child(
     # The suite builds its own clock; this child (a fresh process) swaps in the alternating one.
     training_suite._StepClock = AlternatingClock
     turns.acquire(me)
-    row = training_suite._throughput("gns", steps, warmup, _our_overrides(root))
+    trainer_precision = "bf16-mixed" if precision == "bf16" else "32-true"
+    row = training_suite._throughput("gns", steps, warmup, _our_overrides(root), trainer_precision)
     if len(train_s) != steps:
         raise RuntimeError(f"timed {len(train_s)} of {steps} training steps")
 
@@ -539,6 +541,7 @@ def _ours_child(
     data = instantiate(cfg.data)
     data.attach(sim)
     sim.eval()
+    sim.set_network_precision(precision)
     w = data.train_set[data.train_set.index.index(window)]
 
     def infer_step() -> None:
@@ -551,7 +554,7 @@ def _ours_child(
     with torch.inference_mode():
         graph = sim.build_graph(w.pos_seq, w.walls, w.time)
     return {
-        "framework": "granular_pyg",
+        "framework": "granular_pyg" + (", bf16" if precision == "bf16" else ""),
         "particles": int(graph.num_real),
         "wall_nodes": int(graph.is_wall.sum()),
         "edges": int(graph.edge_index.shape[1]),
@@ -602,8 +605,11 @@ def side_by_side(
     out: str | Path = "outputs/gns_side_by_side",
     warmup: int = 1,
     wall_spacing: float | None = None,
+    precision: str = "32",
 ) -> dict:
     """Convert the hopper sample, time both frameworks alternately, write the report.
+    ``precision`` is our network's (``"32"``, or ``"bf16"``: bf16-mixed training and bf16
+    inference); gns runs in float32, the only precision it has.
 
     Returns:
         ``{"conversion": ..., "rows": [gns, ours]}``, each row with ``particles``,
@@ -629,7 +635,7 @@ def side_by_side(
     turns, results = _Turns(ctx), ctx.Queue()
     jobs = {
         "gns": (str(gns), conversion.gns_dir, conversion.window, steps, warmup, threads, noise_std),
-        "ours": (conversion.ours_dir, conversion.window, steps, warmup, threads),
+        "ours": (conversion.ours_dir, conversion.window, steps, warmup, threads, precision),
     }
     procs = [
         ctx.Process(target=_child, args=(which, job, turns, me, results))
@@ -653,6 +659,7 @@ def side_by_side(
         "steps": steps,
         "warmup": warmup,
         "threads": threads,
+        "precision": precision,
         "noise_std": noise_std,
         "rows": rows,
     }
@@ -713,6 +720,8 @@ def _write_report(out: Path, result: dict) -> None:
         f"{r['parameters']:,} parameters"
         for r in rows
     )
+    bf16 = result.get("precision") == "bf16"
+    ours_precision = "bf16 (bf16-mixed training)" if bf16 else "float32"
     text = f"""# Side by side with geoelements/gns
 
 {command_header("granular_pyg.bench.gns_side_by_side")}
@@ -720,12 +729,13 @@ def _write_report(out: Path, result: dict) -> None:
 {_table(rows)}
 
 Medians over {result["steps"]} step(s) after {result["warmup"]} warm-up step(s), one gns step
-alternating with one of ours; {result["threads"]} torch threads each; each framework in its own
-spawned process (peak RSS: its `ru_maxrss` over training and inference). Batch 1, latent 128, 10
-message-passing steps, R = {CONNECTIVITY_RADIUS * 1e3:g} mm, training noise std
-{result["noise_std"]:g} m per step for both. Edges and wall nodes: the inference window's graph
-(gns: radius graph over grains and kinematic particles, self-loops included; ours: particle pairs
-plus one wall node and edge per particle-triangle pair closer than R).
+alternating with one of ours; {result["threads"]} torch threads each; our network in
+{ours_precision}, gns's in float32; each framework in its own spawned process (peak RSS:
+its `ru_maxrss` over training and inference). Batch 1, latent 128, 10 message-passing steps,
+R = {CONNECTIVITY_RADIUS * 1e3:g} mm, training noise std {result["noise_std"]:g} m per step
+for both. Edges and wall nodes: the inference window's graph (gns: radius graph over grains and
+kinematic particles, self-loops included; ours: particle pairs plus one wall node and edge per
+particle-triangle pair closer than R).
 
 Data: the bundled hopper sample cut to the frames after the lid's removal and before the first
 particle leaves, {conv["frames"]} frames per trajectory; walls as kinematic particles every
@@ -757,13 +767,25 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="kinematic particles' spacing (m); default: a particle diameter",
     )
+    parser.add_argument(
+        "--precision",
+        choices=["32", "bf16"],
+        default="32",
+        help="our network's precision (gns: float32 always)",
+    )
     parser.add_argument("--out", type=Path, default=Path("outputs/gns_side_by_side"))
     args = parser.parse_args(argv)
     whole_number("--steps", args.steps, minimum=1)
     whole_number("--warmup", args.warmup, minimum=1)
     whole_number("--threads", args.threads, minimum=1)
     result = side_by_side(
-        args.gns, args.steps, args.threads, args.out, args.warmup, args.wall_spacing
+        args.gns,
+        args.steps,
+        args.threads,
+        args.out,
+        args.warmup,
+        args.wall_spacing,
+        args.precision,
     )
     print(_table(result["rows"]))
     print(f"report: {args.out / 'report.md'}")
