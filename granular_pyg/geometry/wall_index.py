@@ -33,6 +33,8 @@ _CELL_SLACK = 1e-6
 # A triangle whose doubled area is below this fraction of its longest edge squared is too thin
 # for its computed normal to bound the distance: its plane bound is left out (set to 0).
 _THIN = 1e-6
+# Smallest grid cell as a fraction of the median triangle edge (see WallIndex's cell_size).
+_MIN_CELL_OF_EDGE = 0.125
 # Boxes of at most this many cells stop being halved: their cells are listed and tested at once.
 _SMALL_BOX = 64
 
@@ -111,7 +113,11 @@ class WallIndex:
     Args:
         vertices: ``[V, 3]`` float vertex positions in the mesh frame (m).
         faces: ``[F, 3]`` integer vertex indices.
-        cell_size: grid cell edge (m) as a multiple of the query radius; 1.0 by default.
+        cell_size: grid cell edge (m) as a multiple of the query radius; 1.0 by default. Cells
+            are never smaller than :data:`_MIN_CELL_OF_EDGE` of the median triangle edge: a
+            query radius far below the triangles' size (the training noise's wall check,
+            1e-6 m) would otherwise build millions of cells (10 M, 80 MB and several seconds
+            for the bundled hopper) for no less work per query.
         max_cells: cap on grid cells; cells grow beyond ``cell_size`` to respect it.
 
     Raises:
@@ -147,6 +153,10 @@ class WallIndex:
         self._grids: dict[float, _Grid] = {}
         self._triangles_by_dtype = {vertices.dtype: self.triangles}
         self._bounds_by_dtype: dict[torch.dtype, _Bounds] = {}
+        edges = self.triangles.double() - self.triangles.double().roll(1, dims=1)
+        lengths = torch.linalg.vector_norm(edges, dim=2).flatten()
+        lengths = lengths[lengths > 0]
+        self.min_cell = _MIN_CELL_OF_EDGE * float(lengths.median()) if len(lengths) else 0.0
 
     @property
     def num_triangles(self) -> int:
@@ -282,7 +292,7 @@ class WallIndex:
         tris = self.triangles.double()
         flat = tris.reshape(-1, 3)
         lo, hi = flat.min(dim=0).values, flat.max(dim=0).values
-        h = radius * self.cell_size_factor
+        h = max(radius * self.cell_size_factor, self.min_cell)
         # Cells needed so that any point within `radius` of the mesh falls inside the grid.
         while True:
             origin = lo - radius - h

@@ -109,6 +109,22 @@ def test_work_follows_near_pairs_not_points_times_triangles():
     assert len(big.query(points, radius)[0]) == near
 
 
+@pytest.mark.parametrize("radius", [1e-6, 1e-4])
+def test_a_radius_far_below_the_triangles_keeps_the_grid_small_and_exact(radius):
+    """A tiny query radius (the training noise's wall check) gets cells of at least an eighth
+    of the median edge, not millions of radius-sized ones, and the same pairs as brute force."""
+    vertices, faces, points = _random_scene(11, num_points=500)
+    points = torch.cat([points, vertices[:200] + 0.5 * radius])  # some points within reach
+    index = WallIndex(vertices, faces)
+    found = index.pairs(points, radius)
+    dense = dense_wall_pairs(points, vertices[faces], radius)
+    assert _pair_set(found.point_idx, found.tri_idx) == _pair_set(dense.point_idx, dense.tri_idx)
+    assert len(found.point_idx) > 0
+    grid = index._grid(radius)
+    assert grid.cell_size == pytest.approx(index.min_cell) and math.prod(grid.dims) < 1_000_000
+    assert index._grid(0.05).cell_size == 0.05  # a radius above the floor keeps its own cells
+
+
 def test_points_far_from_every_wall_and_empty_queries():
     vertices, faces, _ = _random_scene(8)
     index = WallIndex(vertices, faces)
