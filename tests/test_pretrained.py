@@ -19,7 +19,7 @@ from granular_pyg.pretrained.export import MAX_BYTES, export
 from granular_pyg.samples import sample_files
 
 #: Each shipped model and the bundled sample it is tested on.
-SAMPLE = {"hopper": "hopper", "drum": "drum", "fast_hopper": "hopper"}
+SAMPLE = {"hopper": "hopper", "drum": "drum", "fast_hopper": "hopper", "fast_drum": "drum"}
 
 
 def test_every_shipped_model_is_tested():
@@ -41,7 +41,10 @@ def test_each_shipped_model_is_small_and_rolls_out_its_bundled_test_trajectory(n
 
 
 def test_unknown_pretrained_name_lists_the_available_ones():
-    available = r"available: pretrained:drum, pretrained:fast_hopper, pretrained:hopper"
+    available = (
+        r"available: pretrained:drum, pretrained:fast_drum, pretrained:fast_hopper, "
+        r"pretrained:hopper"
+    )
     with pytest.raises(InputError, match=available):
         resolve_checkpoint("pretrained:silo")
     assert str(resolve_checkpoint("runs/x/last.ckpt")) == "runs/x/last.ckpt"

@@ -22,6 +22,7 @@ PRETRAINED = {
     "hopper": "hopper_v3.ckpt",
     "drum": "drum_v3.ckpt",
     "fast_hopper": "fast_hopper_v3.ckpt",  # latent 32, k = 16: the speed model
+    "fast_drum": "fast_drum_v3.ckpt",  # latent 32, k = 8: the drum's speed model
 }
 
 
