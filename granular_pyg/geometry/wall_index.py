@@ -360,6 +360,8 @@ class WallIndex:
         offset = torch.stack([within % sx, (within // sx) % sy, within // (sx * sy)], dim=1)
         cell, tri = lo[box] + offset, tri[box]
         centre = origin + (cell.double() + 0.5) * h
+        maybe = bounds.lower(centre, tri) <= cell_reach * (1.0 + _CELL_SLACK) + bounds.slack
+        cell, tri, centre = cell[maybe], tri[maybe], centre[maybe]
         _, sq = closest_point_on_triangles(centre, tris[tri], validate=False)
         keep = sq <= cell_reach**2 * (1.0 + _CELL_SLACK)
         return cell[keep], tri[keep]
