@@ -320,8 +320,8 @@ class WallIndex:
         :math:`d(\text{centre}, T) \le r + \tfrac{\sqrt3}{2} h + \tfrac{h}{2} |s - 1|`
         (the farthest cell centre lies :math:`\tfrac{h}{2}|s - 1|` from the box centre). Boxes
         are tested with the cheap lower bounds of :class:`_Bounds`, the cells of the small boxes
-        at the end with the exact distance. The work follows the cells along the surface, not
-        the bounding boxes' volume.
+        at the end with the bounds and then the exact distance. The work follows the cells
+        along the surface, not the bounding boxes' volume.
 
         Returns:
             ``(cell_xyz [E, 3] int64, tri_id [E] int64)``.
@@ -352,7 +352,7 @@ class WallIndex:
                 torch.cat([lo[~split], lo[split], lo_b[split]]),
                 torch.cat([hi[~split], hi_a[split], hi[split]]),
             )
-        # Every cell of the small boxes that remain, then the exact test per cell.
+        # Every cell of the small boxes that remain: the bounds, then the exact test.
         count = size.prod(dim=1)
         box = torch.repeat_interleave(torch.arange(len(tri), device=tris.device), count)
         within = torch.arange(len(box), device=tris.device) - (torch.cumsum(count, 0) - count)[box]
