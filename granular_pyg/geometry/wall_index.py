@@ -200,15 +200,17 @@ class WallIndex:
             :class:`WallPairs` sorted by ``(point_idx, tri_idx)``; closest points in the world
             frame, in the dtype of ``points``.
         """
+        radius = _check_radius(radius)
         local = self._to_mesh_frame(points, rotation, translation)
         point_idx, tri_idx = self._candidates(local, radius)
+        near = local[point_idx]
         bounds = self._bounds_as(local.dtype)
-        maybe = bounds.lower(local[point_idx], tri_idx) < _check_radius(radius) + bounds.slack
-        point_idx, tri_idx = point_idx[maybe], tri_idx[maybe]
+        maybe = bounds.lower(near, tri_idx) < radius + bounds.slack
+        point_idx, tri_idx, near = point_idx[maybe], tri_idx[maybe], near[maybe]
         closest, sq_dist = closest_point_on_triangles(
-            local[point_idx], self._triangles_as(points.dtype)[tri_idx], validate=False
+            near, self._triangles_as(points.dtype)[tri_idx], validate=False
         )
-        keep = sq_dist < _check_radius(radius) ** 2
+        keep = sq_dist < radius**2
         closest = closest[keep]
         if rotation is not None or translation is not None:
             closest = self._to_world_frame(closest, rotation, translation)
