@@ -7,6 +7,8 @@ file, a full disk, a model that predicted NaN) prints one ``error:`` message tha
 thing and the fix, and exits with status 2. A traceback is printed only with
 ``GRANULAR_PYG_DEBUG=1`` or ``HYDRA_FULL_ERROR=1``. A command line Hydra cannot compose (an
 unknown key or option, a malformed override) is reported the same way, before any work starts.
+A command run from the command line keeps freed memory in its heap
+(:func:`granular_pyg.heap.keep_freed_memory`: no page faults for each step's large tensors).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from omegaconf.errors import (
 
 from granular_pyg.config import CONF_DIR
 from granular_pyg.errors import InputError, NonFiniteError
+from granular_pyg.heap import keep_freed_memory
 
 __all__ = ["EXIT_INPUT_ERROR", "command", "debugging", "reports_errors"]
 
@@ -169,6 +172,7 @@ def command(config_name: str) -> Callable[[Callable], Callable]:
         def run(*args, **kwargs):
             if not args and not kwargs:  # from the command line
                 _precheck(config_name, sys.argv[1:])
+                keep_freed_memory()
             return hydra_main(*args, **kwargs)
 
         return run

@@ -507,8 +507,10 @@ def _ours_child(
 
     from granular_pyg.bench import training as training_suite
     from granular_pyg.config import compose
+    from granular_pyg.heap import keep_freed_memory
 
     torch.set_num_threads(threads)
+    keep_freed_memory()  # as `python -m granular_pyg.train` does (gns's process: as it comes)
     logging.getLogger("lightning.pytorch").setLevel(logging.ERROR)
     train_s: list[float] = []
 

@@ -8,7 +8,15 @@ from torch import Tensor
 from torch_geometric.nn import MessagePassing
 
 from granular_pyg.errors import InputError
-from granular_pyg.nn.mlp import MLP, _check_int, blocked_inference, fill_by_blocks, row_chunks
+from granular_pyg.nn.mlp import (
+    MLP,
+    _check_int,
+    add,
+    blocked_inference,
+    fill_by_blocks,
+    row_chunks,
+    take_rows,
+)
 
 __all__ = ["AGGREGATIONS", "InteractionNetwork"]
 
@@ -118,14 +126,15 @@ class InteractionNetwork(MessagePassing):
         own_weight = first.weight[:, :latent]
         message_weight = first.weight[:, latent:].t()
 
-        def block(rows) -> Tensor:
+        def block(rows: slice | None) -> Tensor:
+            own = take_rows(x, rows)
             hidden = torch.addmm(
-                F.linear(x[rows], own_weight, first.bias), aggregated[rows], message_weight
+                F.linear(own, own_weight, first.bias), take_rows(aggregated, rows), message_weight
             )
-            return x[rows] + self.node_mlp.run_block(hidden, start=1)
+            return own + self.node_mlp.run_block(hidden, start=1)
 
         if not blocked_inference(x.shape[0]):
-            return block(slice(None))
+            return block(None)
         return fill_by_blocks(torch.empty_like(x), block)
 
     def update_edges(
@@ -152,14 +161,15 @@ class InteractionNetwork(MessagePassing):
         source = F.linear(x, weight[:, latent : 2 * latent])  # [num_nodes, out]
         edge_weight = weight[:, 2 * latent :].t()
 
-        def block(rows) -> Tensor:
-            hidden = target.index_select(0, edge_index[1, rows])
-            hidden += source.index_select(0, edge_index[0, rows])
-            hidden = torch.addmm(hidden, edge_attr[rows], edge_weight)
-            return edge_attr[rows] + self.edge_mlp.run_block(hidden, start=1)
+        def block(rows: slice | None) -> Tensor:
+            edges = take_rows(edge_index, rows, dim=1)
+            latents = take_rows(edge_attr, rows)
+            hidden = add(target.index_select(0, edges[1]), source.index_select(0, edges[0]))
+            hidden = torch.addmm(hidden, latents, edge_weight)
+            return latents + self.edge_mlp.run_block(hidden, start=1)
 
         if not blocked_inference(edge_attr.shape[0]):
-            return block(slice(None))
+            return block(None)
         return fill_by_blocks(edge_attr if overwrite else torch.empty_like(edge_attr), block)
 
     def edge_messages(self, edge_index: Tensor, edge_attr: Tensor, num_nodes: int) -> Tensor:

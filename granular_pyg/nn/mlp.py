@@ -9,7 +9,7 @@ from torch import Tensor, nn
 
 from granular_pyg.errors import InputError
 
-__all__ = ["MLP", "ROW_CHUNK", "fill_by_blocks", "row_chunks"]
+__all__ = ["MLP", "ROW_CHUNK", "add", "fill_by_blocks", "relu", "row_chunks", "take_rows"]
 
 #: Rows per block of the blocked inference path: 4,096 rows of 128 float32 are 2 MiB, so a
 #: block's hidden activations stay in a core's L2 cache instead of streaming through memory.
@@ -26,6 +26,26 @@ def blocked_inference(rows: int) -> bool:
     """Whether a layer over ``rows`` rows takes the blocked path: no autograd graph is being
     recorded (inference, rollouts) and there is more than one block."""
     return rows > ROW_CHUNK and not torch.is_grad_enabled()
+
+
+def relu(h: Tensor) -> Tensor:
+    """ReLU of ``h``: in place for float32, out of place otherwise. In place spares a buffer,
+    but PyTorch's in-place bfloat16 kernels on CPU run 2-3x slower than its out-of-place ones
+    (``docs/results.md``, training throughput). In place is safe here, also under autograd:
+    ``h`` is always a Linear layer's output, whose backward does not need it."""
+    return h.relu_() if h.dtype == torch.float32 else torch.relu(h)
+
+
+def add(a: Tensor, b: Tensor) -> Tensor:
+    """``a + b``, into ``a`` for float32 (see :func:`relu`); ``a`` must be a fresh result."""
+    return a.add_(b) if a.dtype == torch.float32 else a + b
+
+
+def take_rows(x: Tensor, rows: slice | None, dim: int = 0) -> Tensor:
+    """``x``'s rows ``rows`` along ``dim``, or ``x`` itself for ``None`` (all rows). Slicing all
+    rows would record a slice in the autograd graph whose backward writes a zero-filled copy of
+    the whole gradient; ``None`` records nothing."""
+    return x if rows is None else x.narrow(dim, rows.start, rows.stop - rows.start)
 
 
 def fill_by_blocks(out: Tensor, block: Callable[[slice], Tensor]) -> Tensor:
@@ -96,21 +116,19 @@ class MLP(nn.Sequential):
 
     def forward(self, x: Tensor, store_in_autocast_dtype: bool = False) -> Tensor:
         """``[*, in_dim] -> [*, out_dim]``. Without autograd and over more than
-        :data:`ROW_CHUNK` rows, the rows run in cache-sized blocks (ReLU in place), so the
+        :data:`ROW_CHUNK` rows, the rows run in cache-sized blocks, so the
         hidden activations never exist for all rows at once: same result, less memory traffic
         and a peak of one block's activations. On that path, ``store_in_autocast_dtype`` under
         autocast stores the output in the autocast dtype (bfloat16: half the memory of the
         largest buffer, the edge latents)."""
         if x.dim() != 2 or not blocked_inference(x.shape[0]):
-            return super().forward(x)
+            return self.run_block(x)
         dtype = _storage_dtype(x) if store_in_autocast_dtype else x.dtype
         out = x.new_empty(x.shape[0], self.out_dim, dtype=dtype)
         return fill_by_blocks(out, lambda rows: self.run_block(x[rows]))
 
     def run_block(self, h: Tensor, start: int = 0) -> Tensor:
-        """The layers from index ``start`` on, over one block of rows (ReLU in place when no
-        autograd graph is recorded)."""
-        in_place = not torch.is_grad_enabled()
+        """The layers from index ``start`` on, over one block of rows (ReLU by :func:`relu`)."""
         for module in list(self)[start:]:
-            h = h.relu_() if in_place and isinstance(module, nn.ReLU) else module(h)
+            h = relu(h) if isinstance(module, nn.ReLU) else module(h)
         return h

@@ -33,19 +33,25 @@ GRAPHS = [(12, 200, 12), (30, 60, 10), (7, 0, 0)]
 GRAPH_IDS = ["dense", "isolated-nodes", "no-edges"]
 
 
+def plain_mlp(mlp: torch.nn.Sequential, h: Tensor) -> Tensor:
+    """The MLP's layers one after the other, ReLU out of place (``MLP`` runs it in place)."""
+    return torch.nn.Sequential.forward(mlp, h)
+
+
 def plain_layer(layer: InteractionNetwork, x: Tensor, edge_index: Tensor, edge_attr: Tensor):
-    """The layer computed the plain way: concatenated edge-MLP input, explicit aggregation."""
+    """The layer computed the plain way: concatenated edge-MLP input, explicit aggregation,
+    out-of-place ReLU."""
     num_nodes = x.size(0)
     source, target = edge_index
     edge_in = torch.cat([x[target], x[source], edge_attr], dim=-1)  # [x_i, x_j, e_ij]
-    edge_new = edge_attr + layer.edge_mlp(edge_in)
+    edge_new = edge_attr + plain_mlp(layer.edge_mlp, edge_in)
     messages = layer.edge_messages(edge_index, edge_new, num_nodes)
     aggregated = torch.zeros_like(x).index_add(0, target, messages)
     if layer.aggr == "mean":
         ones = torch.ones(target.numel(), dtype=x.dtype)
         count = torch.zeros(num_nodes, dtype=x.dtype).index_add(0, target, ones)
         aggregated = aggregated / count.clamp(min=1).unsqueeze(-1)
-    x_new = x + layer.node_mlp(torch.cat([x, aggregated], dim=-1))
+    x_new = x + plain_mlp(layer.node_mlp, torch.cat([x, aggregated], dim=-1))
     return x_new, edge_new
 
 
