@@ -45,4 +45,9 @@ def test_take_rows_is_the_tensor_itself_for_all_rows_and_a_view_otherwise():
     x = torch.arange(12.0).reshape(4, 3).requires_grad_()
     assert take_rows(x, None) is x
     assert take_rows(x, slice(1, 3)).tolist() == [[3.0, 4.0, 5.0], [6.0, 7.0, 8.0]]
-    assert take_rows(x, slice(0, 2), dim=1).tolist() == [[0.0, 1.0], [3.0, 4.0], [6.0, 7.0], [9.0, 10.0]]
+    assert take_rows(x, slice(0, 2), dim=1).tolist() == [
+        [0.0, 1.0],
+        [3.0, 4.0],
+        [6.0, 7.0],
+        [9.0, 10.0],
+    ]
