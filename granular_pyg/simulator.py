@@ -244,6 +244,7 @@ class LearnedSimulator(nn.Module):
         )
         self.register_buffer("dt", torch.tensor(float(dt), dtype=torch.float64))
         self.network_dtype: torch.dtype | None = None  # None: float32 (see set_network_precision)
+        self._compiled_network = None  # see compile_for_training (a function, not a submodule)
         for name, value in (
             ("vel_mean", 0.0),
             ("vel_std", 1.0),
@@ -434,14 +435,25 @@ class LearnedSimulator(nn.Module):
             )
         self.network_dtype = torch.bfloat16 if precision == "bf16" else None
 
+    def compile_for_training(self) -> None:
+        """Run the network through ``torch.compile`` (dynamic shapes) whenever autograd is
+        recording, i.e. in training steps; validation and rollouts stay eager (their blocked
+        loops would recompile for every edge count). The weights and the ``state_dict`` are
+        the model's own. Under bf16 autocast on a CPU the fused kernels make a training step
+        about 1.3x faster (float32: no gain); the first steps pay the compilation, about a
+        minute on two cores (cached on disk for the next run)."""
+        self._compiled_network = torch.compile(self.model.forward, dynamic=True)
+
     def forward(self, graph: Data | Batch) -> torch.Tensor:
         """Normalised acceleration ``[num real particles, 3]`` (float32) of a graph or a batch
         of graphs."""
+        compiled = self._compiled_network is not None and torch.is_grad_enabled()
+        network = self._compiled_network if compiled else self.model
         if self.network_dtype is None:
-            out = self.model(graph.x, graph.edge_index, graph.edge_attr)
+            out = network(graph.x, graph.edge_index, graph.edge_attr)
         else:
             with torch.autocast(graph.x.device.type, dtype=self.network_dtype):
-                out = self.model(graph.x, graph.edge_index, graph.edge_attr)
+                out = network(graph.x, graph.edge_index, graph.edge_attr)
             out = out.float()
         return out[~graph.is_wall]
 

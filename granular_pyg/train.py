@@ -102,6 +102,8 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     L.seed_everything(cfg.seed, workers=True)
     torch.set_num_threads(cfg.threads)
     sim = instantiate(cfg.model)
+    if cfg.get("compile"):
+        sim.compile_for_training()
     objective = instantiate(cfg.objective)
     datamodule = instantiate(cfg.data)
     datamodule.attach(sim, objective)

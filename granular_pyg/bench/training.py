@@ -37,11 +37,18 @@ class _StepClock(L.Callback):
 
 
 def _throughput(
-    processor: str, steps: int, warmup: int, overrides: list[str], precision: str = "32-true"
+    processor: str,
+    steps: int,
+    warmup: int,
+    overrides: list[str],
+    precision: str = "32-true",
+    compiled: bool = False,
 ) -> dict:
     cfg = compose("train", [f"model/processor={processor}", *overrides])
     L.seed_everything(cfg.seed)
     sim = instantiate(cfg.model)
+    if compiled:
+        sim.compile_for_training()
     objective = instantiate(cfg.objective)
     data = instantiate(cfg.data)
     data.attach(sim, objective)
@@ -63,7 +70,7 @@ def _throughput(
     seconds = clock.end - clock.start
     return {
         "processor": processor,
-        "precision": precision,
+        "precision": precision + ("+compile" if compiled else ""),
         "parameters": sum(p.numel() for p in sim.parameters()),
         "batch_size": data.batch_size,
         "steps": steps,
@@ -80,14 +87,17 @@ def run(
     overrides: tuple[str, ...] = (),
     repeats: int = 1,
     precisions: tuple[str, ...] = ("32-true",),
+    compiled: tuple[bool, ...] = (False,),
 ) -> SuiteResult:
     """Run the suite; see the module docstring. ``precisions``: Lightning's (``32-true``,
-    ``bf16-mixed``: matrix products in bfloat16 under autocast), a row each per processor.
-    ``repeats`` is unused (one timed window)."""
+    ``bf16-mixed``: matrix products in bfloat16 under autocast), a row each per processor;
+    ``compiled``: eager and/or ``torch.compile``d training steps (a row each; the compilation
+    falls in the warm-up steps). ``repeats`` is unused (one timed window)."""
     rows = [
-        _throughput(p, steps, warmup, list(overrides), str(precision))
+        _throughput(p, steps, warmup, list(overrides), str(precision), bool(c))
         for p in processors
         for precision in precisions
+        for c in compiled
     ]
     results = {
         f"training/{r['processor']}/{r['precision']}/samples_per_s": r["samples_per_s"]

@@ -19,6 +19,7 @@ PROCESSOR_LAYERS: dict[str, type[InteractionNetwork]] = {
 }
 
 
+@torch.compiler.disable  # data-dependent checks: run eagerly, outside a compiled graph
 def _check_graph(
     x: Tensor,
     edge_index: Tensor,
