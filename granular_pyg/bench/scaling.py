@@ -40,9 +40,11 @@ def _measure(
     from granular_pyg.bench.report import time_call
     from granular_pyg.config import compose
     from granular_pyg.geometry import WallIndex
+    from granular_pyg.heap import keep_freed_memory
     from granular_pyg.transforms import radius_graph
 
     torch.set_num_threads(2)
+    keep_freed_memory()  # as the commands do (a spawned child does not inherit it)
     vertices, faces = funnel_mesh(triangles)
     pos = packed_particles(particles, radius=radius).float()
     cutoff = 3.75 * radius  # the model's R = 7.5 mm for 2 mm particles
