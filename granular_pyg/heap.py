@@ -7,7 +7,9 @@ paid again in page faults: about 170,000 per training step of the default model,
 its time on one core (``docs/results.md``, training throughput). :func:`keep_freed_memory` asks
 ``malloc`` to take every block from its heap and to keep freed memory there: the next step
 reuses the same pages. The process's resident memory then stays at its peak instead of
-falling back between steps; the peak itself is unchanged.
+falling back between steps, and the peak grows a little with fragmentation: a float32
+training step 1.2x faster; a 100,000-particle rollout step 5-10% faster, its peak 76-125 MiB
+higher (2.4 GB float32, 1.8 GB bf16).
 """
 
 from __future__ import annotations
