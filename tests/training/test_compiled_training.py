@@ -5,44 +5,29 @@ checkpoints keep the model's own parameter names."""
 from __future__ import annotations
 
 import torch
-from hydra.utils import instantiate
 
-from granular_pyg.config import compose
-
-
-def _loss_and_grads(sim, objective, batch):
-    sim.zero_grad()
-    loss = objective.loss(sim, batch, torch.Generator().manual_seed(0))
-    loss.backward()
-    return float(loss.detach()), torch.cat([p.grad.flatten() for p in sim.parameters()])
+from tests.training.one_batch import loss_and_grads, model_objective_batch
 
 
 def test_a_compiled_training_step_equals_the_eager_one():
     torch.manual_seed(0)
-    cfg = compose("train", ["model.latent=16", "data.batch_size=2"])
-    sim, objective, data = instantiate(cfg.model), instantiate(cfg.objective), instantiate(cfg.data)
-    data.attach(sim, objective)
-    batch = next(iter(data.train_dataloader()))
-    eager_loss, eager = _loss_and_grads(sim, objective, batch)
+    sim, objective, batch = model_objective_batch(["model.latent=16", "data.batch_size=2"])
+    eager_loss, eager = loss_and_grads(sim, objective, batch)
     keys = list(sim.state_dict())
     sim.compile_for_training()
-    compiled_loss, compiled = _loss_and_grads(sim, objective, batch)
+    compiled_loss, compiled = loss_and_grads(sim, objective, batch)
     assert abs(compiled_loss - eager_loss) <= 1e-5 * abs(eager_loss)
     assert float((compiled - eager).abs().max()) <= 1e-4 * float(eager.abs().max())
     assert list(sim.state_dict()) == keys  # no "_orig_mod." names in checkpoints
 
 
 def test_without_autograd_the_network_runs_eagerly():
-    cfg = compose("train", ["model.latent=16"])
-    sim = instantiate(cfg.model)
+    sim, _, batch = model_objective_batch(["model.latent=16"])
     sim.compile_for_training()
 
     def refuse(*args):
         raise AssertionError("the compiled network ran without autograd")
 
     sim._compiled_network = refuse
-    data = instantiate(cfg.data)
-    data.attach(sim, instantiate(cfg.objective))
-    batch = next(iter(data.train_dataloader()))
     with torch.no_grad():  # validation and rollouts
         assert torch.isfinite(sim(batch)).all()
