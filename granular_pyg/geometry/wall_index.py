@@ -153,7 +153,8 @@ class WallIndex:
         self._grids: dict[float, _Grid] = {}
         self._triangles_by_dtype = {vertices.dtype: self.triangles}
         self._bounds_by_dtype: dict[torch.dtype, _Bounds] = {}
-        edges = self.triangles.double() - self.triangles.double().roll(1, dims=1)
+        corners = self.triangles.double()
+        edges = corners - corners.roll(1, dims=1)
         lengths = torch.linalg.vector_norm(edges, dim=2).flatten()
         lengths = lengths[lengths > 0]
         self.min_cell = _MIN_CELL_OF_EDGE * float(lengths.median()) if len(lengths) else 0.0
