@@ -22,6 +22,17 @@ feature mismatch is the classic silent bug of learned simulators). For one time 
   distance, ``|x_i - x_j| / (r_i + r_j)`` (``r`` 0 for a wall node): 1 where two particles
   touch or a particle touches a wall, whatever the particles' size.
 
+With the equivariant processor (``model/processor=equivariant``,
+:class:`~granular_pyg.nn.HorizontalEquivariantProcessor`) the same quantities enter split into
+scalars and horizontal vectors (see :meth:`LearnedSimulator._equivariant_features`), so the
+prediction turns and mirrors with the scene exactly.
+
+Every feature can be built in a turned or mirrored frame ``Q`` (``frame`` of
+:meth:`LearnedSimulator.build_graph`, a ``[3, 3]`` orthogonal matrix fixing the z axis):
+positions, velocities, wall velocities and normals are expressed in it, and
+:meth:`LearnedSimulator.predict_acceleration` turns the prediction back. Training draws one
+such frame per window (data augmentation), so every processor sees the symmetry in its data.
+
 No absolute position enters, so predictions are translation invariant up to rounding.
 Positions are centred on the particles' mean in float64 before the cast to float32, so the
 limit is the precision of the input positions themselves (velocities are differences of
@@ -45,7 +56,13 @@ from torch import nn
 from torch_geometric.data import Batch, Data
 
 from granular_pyg.errors import InputError, NonFiniteError, check_coordinates_fit, check_tensor
-from granular_pyg.nn import EncodeProcessDecode, Processor
+from granular_pyg.geometry import canonical_normals
+from granular_pyg.nn import (
+    EncodeProcessDecode,
+    HorizontalEquivariantNetwork,
+    HorizontalEquivariantProcessor,
+    Processor,
+)
 from granular_pyg.progress import show_progress
 from granular_pyg.scenes import Materials, WallSet
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
@@ -181,6 +198,9 @@ class LearnedSimulator(nn.Module):
             (keys of :data:`MATERIAL_FEATURES`, scaled by it), the same on every node.
         contact_feature: one more edge input: the edge's length over its contact distance
             (the two radii summed; a wall node's radius 0), 1 at contact for any particle size.
+        wall_nodes: ``"triangle"`` (a wall node per nearby triangle, the paper's) or
+            ``"patch"`` (per nearby surface patch, independent of the triangulation; see
+            :class:`~granular_pyg.transforms.AddWallNodes`).
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
@@ -190,7 +210,7 @@ class LearnedSimulator(nn.Module):
 
     def __init__(
         self,
-        processor: Processor,
+        processor: Processor | HorizontalEquivariantProcessor,
         radius: float,
         history: int = 5,
         normals: str = "both",
@@ -205,6 +225,7 @@ class LearnedSimulator(nn.Module):
         radius_feature: bool = False,
         material_features: Iterable[str] = (),
         contact_feature: bool = False,
+        wall_nodes: str = "triangle",
     ) -> None:
         super().__init__()
         if history < 1:
@@ -235,13 +256,25 @@ class LearnedSimulator(nn.Module):
         self.radius_feature, self.material_features = radius_feature, names
         self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
-        self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight)
-        node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES
-        node_in += int(self.radius_feature) + len(self.material_features)
-        edge_in = NUM_EDGE_FEATURES + int(self.contact_feature)
-        self.model = EncodeProcessDecode(
-            node_in, edge_in, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
-        )
+        self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight, wall_nodes)
+        extra_in = int(self.radius_feature) + len(self.material_features)
+        self.equivariant = isinstance(processor, HorizontalEquivariantProcessor)
+        if self.equivariant:
+            if processor.latent != latent:
+                raise InputError(
+                    f"processor: its latent width ({processor.latent}) differs from the "
+                    f"model's ({latent}); the presets interpolate it as ${{..latent}}"
+                )
+            h = self.history
+            node_in = h + h * (h + 1) // 2 + 2 + NUM_TYPES + extra_in
+            edge_in = 4 + int(self.contact_feature)
+            self.model = HorizontalEquivariantNetwork(node_in, h + 1, edge_in, processor, mlp_layers)
+        else:
+            node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES + extra_in
+            edge_in = NUM_EDGE_FEATURES + int(self.contact_feature)
+            self.model = EncodeProcessDecode(
+                node_in, edge_in, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
+            )
         self.register_buffer("dt", torch.tensor(float(dt), dtype=torch.float64))
         self.network_dtype: torch.dtype | None = None  # None: float32 (see set_network_precision)
         self._compiled_network = None  # see compile_for_training (a function, not a submodule)
@@ -262,7 +295,17 @@ class LearnedSimulator(nn.Module):
         acc_mean: torch.Tensor,
         acc_std: torch.Tensor,
     ) -> None:
-        """Set the statistics (``[3]`` each; m/s and m/s^2) kept in and saved with the module."""
+        """Set the statistics (``[3]`` each; m/s and m/s^2) kept in and saved with the module.
+
+        An equivariant model keeps them isotropic in the horizontal plane (what a turn about
+        gravity or a mirror leaves unchanged): the horizontal means become 0 and the two
+        horizontal stds their root mean square with the means, ``sqrt(mean_xy(std^2 +
+        mean^2))`` (:func:`~granular_pyg.data.statistics.horizontally_isotropic`)."""
+        if self.equivariant:
+            from granular_pyg.data.statistics import horizontally_isotropic
+
+            vel_mean, vel_std = horizontally_isotropic(vel_mean, vel_std)
+            acc_mean, acc_std = horizontally_isotropic(acc_mean, acc_std)
         for name, value in (
             ("vel_mean", vel_mean),
             ("vel_std", vel_std),
@@ -287,11 +330,19 @@ class LearnedSimulator(nn.Module):
         next_vel = self.velocities(pos_seq[:, -2:])[:, 0] + self.dt * acc.double()
         return pos_seq[:, -1].double() + self.dt * next_vel
 
-    def target_acceleration(self, pos_seq: torch.Tensor, target_pos: torch.Tensor) -> torch.Tensor:
-        """Normalised acceleration ``[N, 3]`` that takes the last state to ``target_pos``."""
+    def target_acceleration(
+        self,
+        pos_seq: torch.Tensor,
+        target_pos: torch.Tensor,
+        frame: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Normalised acceleration ``[N, 3]`` that takes the last state to ``target_pos``,
+        expressed in ``frame`` (``[3, 3]`` orthogonal, see :meth:`build_graph`) if given."""
         last_vel = self.velocities(pos_seq[:, -2:])[:, 0]
         next_vel = (target_pos.double() - pos_seq[:, -1].double()) / self.dt
         acc = (next_vel - last_vel) / self.dt
+        if frame is not None:
+            acc = acc @ frame.to(acc).T
         return ((acc - self.acc_mean.double()) / self.acc_std.double()).float()
 
     # -- graph and features -----------------------------------------------------------------
@@ -339,6 +390,7 @@ class LearnedSimulator(nn.Module):
         neighbours: NeighbourList | None = None,
         ids: torch.Tensor | None = None,
         props: ParticleProps | None = None,
+        frame: torch.Tensor | None = None,
     ) -> Data:
         """The input graph for one state.
 
@@ -352,6 +404,9 @@ class LearnedSimulator(nn.Module):
             ids: ``[N]`` increasing ids of the present particles, for ``neighbours``.
             props: the ``N`` particles' :class:`ParticleProps` (their rows of it); needed with
                 ``radius_feature`` or ``material_features`` (InputError without), else ignored.
+            frame: ``[3, 3]`` orthogonal matrix fixing the z axis (a turn about gravity, maybe
+                with a mirror): the features are those of the scene turned by it; None: the
+                identity. The graph itself (edges, wall nodes) is the same in every frame.
 
         The edges and the walls' closest points come from detached positions; the features
         (velocities, displacements) keep ``pos_seq``'s gradient, if it has one.
@@ -372,19 +427,60 @@ class LearnedSimulator(nn.Module):
         data = self.wall_nodes(data)
         if last.requires_grad:  # unrolled training: the features keep the positions' gradient
             data.pos = torch.cat([last.to(data.pos.dtype), data.pos[data.num_real :]])
-        return self._features(data, pos_seq, props)
+        if self.equivariant:
+            return self._equivariant_features(data, pos_seq, props, frame)
+        return self._features(data, pos_seq, props, frame)
 
-    def _features(
-        self, data: Data, pos_seq: torch.Tensor, props: ParticleProps | None = None
-    ) -> Data:
+    def _vectors_in_frame(
+        self, data: Data, pos_seq: torch.Tensor, frame: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The vector inputs in ``frame``: positions relative to the particles' mean
+        ``[N + W, 3]`` (float64 first: translation invariance), normalised velocities
+        ``[N, H, 3]`` and wall velocities ``[W, 3]``, and the wall normal the variant sees
+        ``[N + W, 3]`` (V2: the winding's; V3: the canonical one; V1: zeros), all float32."""
         num_real = data.num_real
         centre = data.pos[:num_real].double().mean(dim=0)
-        rel = (data.pos.double() - centre).float()  # float64 first: translation invariance
-        vel = (self.velocities(pos_seq).float() - self.vel_mean) / self.vel_std
-        wall_vel = (data.wall_vel[num_real:].float() - self.vel_mean) / self.vel_std
+        rel = data.pos.double() - centre
+        vel = self.velocities(pos_seq)
+        wall_vel = data.wall_vel[num_real:].double()
+        normal = data.normal_feat[:, :3].double()
+        if frame is not None:
+            q = frame.to(torch.float64).T
+            rel, vel, wall_vel, normal = rel @ q, vel @ q, wall_vel @ q, normal @ q
+        dtype = self.vel_mean.dtype  # float32, or float64 for a model turned to double
+        vel = (vel.to(dtype) - self.vel_mean) / self.vel_std
+        wall_vel = (wall_vel.to(dtype) - self.vel_mean) / self.vel_std
+        return rel.to(dtype), vel, wall_vel, normal.to(dtype)
+
+    def _normal_features(self, normal: torch.Tensor, data: Data) -> torch.Tensor:
+        """The variant's six normal columns ``[N + W, 6]`` of the (possibly turned) normal."""
+        if self.wall_nodes.normals == "single":
+            return torch.cat([normal, torch.zeros_like(normal)], dim=1)
+        if self.wall_nodes.normals == "both":
+            feat = canonical_normals(normal)
+            return torch.where(data.is_wall.unsqueeze(1), feat, torch.zeros_like(feat))
+        return normal.new_zeros((normal.shape[0], NUM_NORMAL_FEATURES))
+
+    def _features(
+        self,
+        data: Data,
+        pos_seq: torch.Tensor,
+        props: ParticleProps | None = None,
+        frame: torch.Tensor | None = None,
+    ) -> Data:
+        num_real = data.num_real
+        if frame is None:  # the features exactly as the shipped models were trained on
+            centre = data.pos[:num_real].double().mean(dim=0)
+            rel = (data.pos.double() - centre).float()  # float64 first: translation invariance
+            vel = (self.velocities(pos_seq).float() - self.vel_mean) / self.vel_std
+            wall_vel = (data.wall_vel[num_real:].float() - self.vel_mean) / self.vel_std
+            normal_feat = data.normal_feat.float()
+        else:
+            rel, vel, wall_vel, normal = self._vectors_in_frame(data, pos_seq, frame)
+            normal_feat = self._normal_features(normal, data)
         vel_feat = torch.cat([vel.flatten(1), wall_vel.repeat(1, self.history)])
         kind = torch.nn.functional.one_hot(data.is_wall.long(), NUM_TYPES).float()
-        x = torch.cat([vel_feat, data.normal_feat.float(), kind * self.type_scale], dim=1)
+        x = torch.cat([vel_feat, normal_feat, kind * self.type_scale], dim=1)
         x = x * data.node_weight.float().unsqueeze(1)
         if self.uses_props:  # after the wall weight: the values themselves on every node
             x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)
@@ -393,10 +489,76 @@ class LearnedSimulator(nn.Module):
         edge_attr = torch.cat([disp, torch.linalg.vector_norm(disp, dim=1, keepdim=True)], 1)
         if self.contact_feature:
             edge_attr = torch.cat([edge_attr, self._contact_column(edge_attr, src, dst, props)], 1)
+        dtype = self.vel_mean.dtype  # float32 (a no-op), or float64 for a model turned to double
+        return Data(
+            x=x.to(dtype),
+            edge_index=data.edge_index,
+            edge_attr=edge_attr.to(dtype),
+            is_wall=data.is_wall,
+            num_real=num_real,
+        )
+
+    def _equivariant_features(
+        self,
+        data: Data,
+        pos_seq: torch.Tensor,
+        props: ParticleProps | None = None,
+        frame: torch.Tensor | None = None,
+    ) -> Data:
+        """Scalars and horizontal vectors for :class:`~granular_pyg.nn.HorizontalEquivariantNetwork`.
+
+        Node scalars ``x [N + W, H + H (H + 1) / 2 + 2 + 2 + P]``: the vertical velocities, the
+        Gram matrix of the horizontal velocities (upper triangle), two normal invariants (V1:
+        zeros; V2: ``n_z, |n_h|``; V3: ``|n_z|, |n_h|``, the same for either orientation), the
+        type one-hot, then the property columns. Node vectors ``vec [N + W, H + 1, 2]``: the
+        horizontal velocities and the normal's horizontal part (V2: ``n_h``; V3: ``n_z n_h``,
+        even in the orientation; V1: zeros). A wall node's velocities are the wall's, and its
+        scalars and vectors are weighted like the other models' features. Edge scalars
+        ``edge_attr [E, 4 (+1)]``: ``|d_h|, d_z, |d|`` of ``d = (x_i - x_j) / R`` and the
+        sender's normal along ``d`` (V2: ``n . d``; V3: ``|n . d|``; V1: 0), then the contact
+        column; edge vectors ``edge_vec [E, 2] = d_h``.
+        """
+        num_real, h = data.num_real, self.history
+        rel, vel, wall_vel, normal = self._vectors_in_frame(data, pos_seq, frame)
+        vel_all = torch.cat([vel, wall_vel.unsqueeze(1).expand(-1, h, -1)])  # [N + W, H, 3]
+        horiz = vel_all[..., :2]
+        rows, cols = torch.triu_indices(h, h)
+        gram = (horiz[:, rows] * horiz[:, cols]).sum(dim=-1)  # [N + W, H (H + 1) / 2]
+        n_h, n_z = normal[:, :2], normal[:, 2:]
+        n_h_len = torch.linalg.vector_norm(n_h, dim=1, keepdim=True)
+        variant = self.wall_nodes.normals
+        if variant == "single":
+            normal_scalars, normal_vec = torch.cat([n_z, n_h_len], 1), n_h
+        elif variant == "both":
+            normal_scalars, normal_vec = torch.cat([n_z.abs(), n_h_len], 1), n_z * n_h
+        else:
+            normal_scalars, normal_vec = n_h.new_zeros((n_h.shape[0], 2)), torch.zeros_like(n_h)
+        kind = torch.nn.functional.one_hot(data.is_wall.long(), NUM_TYPES).to(rel.dtype)
+        weight = data.node_weight.to(rel.dtype).unsqueeze(1)
+        x = torch.cat([vel_all[..., 2], gram, normal_scalars, kind * self.type_scale], 1) * weight
+        vec = torch.cat([horiz, normal_vec.unsqueeze(1)], dim=1) * weight.unsqueeze(-1)
+        if self.uses_props:
+            x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)
+        src, dst = data.edge_index
+        disp = (rel[dst] - rel[src]) / self.radius
+        along = (normal[src] * disp).sum(dim=1, keepdim=True)
+        if variant == "both":
+            along = along.abs()
+        elif variant == "none":
+            along = torch.zeros_like(along)
+        length = torch.linalg.vector_norm(disp, dim=1, keepdim=True)
+        edge_attr = torch.cat(
+            [torch.linalg.vector_norm(disp[:, :2], dim=1, keepdim=True), disp[:, 2:], length, along],
+            dim=1,
+        )
+        if self.contact_feature:
+            edge_attr = torch.cat([edge_attr, self._contact_column(length, src, dst, props)], 1)
         return Data(
             x=x,
+            vec=vec,
             edge_index=data.edge_index,
             edge_attr=edge_attr,
+            edge_vec=disp[:, :2].contiguous(),
             is_wall=data.is_wall,
             num_real=num_real,
         )
@@ -405,12 +567,15 @@ class LearnedSimulator(nn.Module):
         self, edge_attr: torch.Tensor, src: torch.Tensor, dst: torch.Tensor, props: ParticleProps
     ) -> torch.Tensor:
         """``[E, 1]``: each edge's length over its contact distance ``r_i + r_j`` (a wall
-        node's ``r`` is 0; every edge ends at a particle, so the sum is positive)."""
-        radius = props.radius.to(edge_attr.device, torch.float32)
+        node's ``r`` is 0; every edge ends at a particle, so the sum is positive). The edge's
+        length over ``R`` is ``edge_attr[:, 3]``, or ``edge_attr[:, 0]`` for a one-column
+        ``edge_attr``."""
+        radius = props.radius.to(edge_attr.device, edge_attr.dtype)
         num_real = radius.shape[0]
         sender = torch.where(src < num_real, radius[src.clamp(max=num_real - 1)], 0.0)
         contact = (sender + radius[dst]) / self.radius  # in the cut-off's units, like the length
-        return edge_attr[:, 3:4] / contact.unsqueeze(1)
+        length = edge_attr if edge_attr.shape[1] == 1 else edge_attr[:, 3:4]
+        return length / contact.unsqueeze(1)
 
     def _property_columns(
         self, props: ParticleProps, num_wall: int, like: torch.Tensor
@@ -420,7 +585,7 @@ class LearnedSimulator(nn.Module):
         cols = []
         if self.radius_feature:
             radius = props.radius.to(like.device, torch.float64) / self.radius
-            cols.append(torch.cat([radius.float(), like.new_zeros(num_wall)]))
+            cols.append(torch.cat([radius.to(like.dtype), like.new_zeros(num_wall)]))
         for name in self.material_features:
             cols.append(like.new_full((num,), MATERIAL_FEATURES[name](props.material(name))))
         return torch.stack(cols, dim=1)
@@ -449,11 +614,15 @@ class LearnedSimulator(nn.Module):
         of graphs."""
         compiled = self._compiled_network is not None and torch.is_grad_enabled()
         network = self._compiled_network if compiled else self.model
+        if self.equivariant:
+            inputs = (graph.x, graph.vec, graph.edge_index, graph.edge_attr, graph.edge_vec)
+        else:
+            inputs = (graph.x, graph.edge_index, graph.edge_attr)
         if self.network_dtype is None:
-            out = network(graph.x, graph.edge_index, graph.edge_attr)
+            out = network(*inputs)
         else:
             with torch.autocast(graph.x.device.type, dtype=self.network_dtype):
-                out = network(graph.x, graph.edge_index, graph.edge_attr)
+                out = network(*inputs)
             out = out.float()
         return out[~graph.is_wall]
 
@@ -465,11 +634,16 @@ class LearnedSimulator(nn.Module):
         neighbours: NeighbourList | None = None,
         ids: torch.Tensor | None = None,
         props: ParticleProps | None = None,
+        frame: torch.Tensor | None = None,
     ) -> torch.Tensor:
-        """Physical acceleration ``[N, 3]`` (m/s^2, float32) of the present particles (the
-        arguments are :meth:`build_graph`'s)."""
-        normalised = self(self.build_graph(pos_seq, walls, time, neighbours, ids, props))
-        return normalised * self.acc_std + self.acc_mean
+        """Physical acceleration ``[N, 3]`` (m/s^2, float32) of the present particles, in the
+        world frame (the arguments are :meth:`build_graph`'s; with a ``frame`` the network
+        sees the turned scene and its prediction is turned back)."""
+        graph = self.build_graph(pos_seq, walls, time, neighbours, ids, props, frame)
+        acc = self(graph) * self.acc_std + self.acc_mean
+        if frame is not None:
+            acc = acc @ frame.to(acc)
+        return acc
 
     @torch.no_grad()
     def step(

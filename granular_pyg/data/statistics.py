@@ -9,7 +9,7 @@ import numpy as np
 
 from granular_pyg.io import Trajectory
 
-__all__ = ["NormalizationStats", "compute_statistics"]
+__all__ = ["NormalizationStats", "compute_statistics", "horizontally_isotropic"]
 
 
 @dataclass(frozen=True)
@@ -22,8 +22,24 @@ class NormalizationStats:
     acc_std: np.ndarray
 
 
+def horizontally_isotropic(mean, std) -> tuple[np.ndarray, np.ndarray]:
+    """Per-component statistics ``mean, std [3]`` made invariant under turns about the z axis
+    and vertical mirrors: the statistics of the same data seen in every horizontal direction.
+    The horizontal means become 0 and both horizontal stds ``sqrt(mean_xy(std^2 + mean^2))``
+    (the second moment is kept); z is unchanged.
+
+    Returns:
+        ``(mean [3], std [3])`` float64 arrays.
+    """
+    mean = np.asarray(mean, np.float64).reshape(3).copy()
+    std = np.asarray(std, np.float64).reshape(3).copy()
+    second = float(np.mean(std[:2] ** 2 + mean[:2] ** 2))
+    mean[:2], std[:2] = 0.0, math.sqrt(second)
+    return mean, std
+
+
 def compute_statistics(
-    trajectories: list[Trajectory], step: int, noise_std: float = 0.0
+    trajectories: list[Trajectory], step: int, noise_std: float = 0.0, isotropic: bool = True
 ) -> NormalizationStats:
     """Statistics of the finite-difference velocities and accelerations at time-step multiple
     ``step``, over every particle and frame where they are defined (NaN-aware).
@@ -31,6 +47,10 @@ def compute_statistics(
     As GNS does, the stds are inflated by the training noise: the random walk of std
     ``noise_std`` (m per step) adds ``noise_std / dt`` to velocities and ``noise_std / dt^2`` to
     accelerations, ``std = sqrt(std^2 + noise^2)``, with ``dt = step * frame_dt``.
+
+    With ``isotropic`` (the default) the horizontal components are made
+    :func:`horizontally_isotropic`: gravity fixes only the vertical, and training turns and
+    mirrors its windows about it, so x and y share one scale and have mean 0.
     """
     vels, accs = [], []
     for traj in trajectories:
@@ -46,9 +66,13 @@ def compute_statistics(
     vel_std = np.sqrt(np.nanstd(vel_all, axis=0) ** 2 + vel_noise**2)
     acc_std = np.sqrt(np.nanstd(acc_all, axis=0) ** 2 + acc_noise**2)
     tiny = math.ulp(1.0)
+    vel_mean, acc_mean = np.nanmean(vel_all, axis=0), np.nanmean(acc_all, axis=0)
+    if isotropic:
+        vel_mean, vel_std = horizontally_isotropic(vel_mean, vel_std)
+        acc_mean, acc_std = horizontally_isotropic(acc_mean, acc_std)
     return NormalizationStats(
-        vel_mean=np.nanmean(vel_all, axis=0),
+        vel_mean=vel_mean,
         vel_std=np.maximum(vel_std, tiny),
-        acc_mean=np.nanmean(acc_all, axis=0),
+        acc_mean=acc_mean,
         acc_std=np.maximum(acc_std, tiny),
     )

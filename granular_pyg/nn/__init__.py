@@ -2,6 +2,10 @@
 
 from granular_pyg.nn.attention_interaction_network import AttentionInteractionNetwork
 from granular_pyg.nn.encode_process_decode import EncodeProcessDecode
+from granular_pyg.nn.horizontal_equivariant import (
+    HorizontalEquivariantNetwork,
+    HorizontalEquivariantProcessor,
+)
 from granular_pyg.nn.interaction_network import AGGREGATIONS, InteractionNetwork
 from granular_pyg.nn.mlp import MLP
 from granular_pyg.nn.processor import PROCESSOR_LAYERS, Processor
@@ -12,6 +16,8 @@ __all__ = [
     "PROCESSOR_LAYERS",
     "AttentionInteractionNetwork",
     "EncodeProcessDecode",
+    "HorizontalEquivariantNetwork",
+    "HorizontalEquivariantProcessor",
     "InteractionNetwork",
     "Processor",
 ]

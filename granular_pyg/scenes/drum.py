@@ -48,6 +48,8 @@ def make_drum(
     dem_dt: float = 2.0e-5,
     settle_time: float = 0.5,
     materials: dict | Materials | None = None,
+    spin_start: float = 0.0,
+    spin_stop: float | None = None,
 ) -> Scene:
     """Build the drum Scene.
 
@@ -62,6 +64,10 @@ def make_drum(
         sections: facets around the circumference.
         duration, frame_dt, dem_dt, settle_time: see :class:`Scene` (s).
         materials: contact parameters (:class:`Materials` or its fields as a dict).
+        spin_start: recorded time (s) at which the drum starts turning; before it the settled
+            bed lies at rest in a drum at rest (a resting state the data then holds).
+        spin_stop: recorded time (s) at which the drum stops (the bed comes to rest again), or
+            None (never); a value at or beyond ``duration`` also means never within the record.
 
     Returns:
         A Scene with one wall ``drum`` rotating about the y axis through the origin.
@@ -108,6 +114,8 @@ def make_drum(
         "fill_fraction": fill_fraction,
         "num_particles": int(num_particles),
         "particle_radius": particle_radius,
+        "spin_start": spin_start,
+        "spin_stop": spin_stop,
     }
     return Scene(
         name="drum",
@@ -117,7 +125,13 @@ def make_drum(
                 "drum",
                 np.asarray(mesh.vertices),
                 np.asarray(mesh.faces),
-                WallMotion("rotation", axis=(0.0, 1.0, 0.0), omega=omega, start_time=0.0),
+                WallMotion(
+                    "rotation",
+                    axis=(0.0, 1.0, 0.0),
+                    omega=omega,
+                    start_time=spin_start,
+                    stop_time=spin_stop if spin_stop is not None and spin_stop < duration else None,
+                ),
             )
         ],
         particles=particles,

@@ -13,6 +13,7 @@ from granular_pyg.geometry import (
     WallIndex,
     argmin_per_group,
     segment_triangle_crossings,
+    surface_patches,
     triangle_normals,
 )
 from granular_pyg.scenes.scene import Scene, Wall
@@ -67,6 +68,15 @@ class WallSet:
         counts = [len(w.faces) for w in self.walls]
         self.offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int).tolist()
         self.num_triangles = int(sum(counts))
+        patches, first = [], 0
+        for w in self.walls:  # patches never span two walls (each has its own motion)
+            ids = surface_patches(w.vertices, w.faces)
+            patches.append(ids + first)
+            first += int(ids.max()) + 1 if len(ids) else 0
+        #: ``[T]`` int64 surface patch of each triangle, global over the walls
+        #: (:func:`~granular_pyg.geometry.surface_patches`).
+        self.patch_of = torch.from_numpy(np.concatenate(patches or [np.zeros(0, np.int64)]))
+        self.num_patches = first
 
     def __repr__(self) -> str:
         names = ", ".join(f"{w.name}: {len(w.faces)}" for w in self.walls)

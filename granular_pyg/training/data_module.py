@@ -13,6 +13,7 @@ from torch_geometric.data import Batch, Data
 from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute_statistics
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError, whole_number
+from granular_pyg.geometry import random_horizontal_frame
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives import Objective
 from granular_pyg.transforms import AddRandomWalkNoise
@@ -86,14 +87,22 @@ class _Collate:
     Noise (training only; resampled where it would cross a wall, as BGNN does) and features come
     from the simulator's own ``build_graph`` and ``target_acceleration``, the one place features
     are built. The noise of a window is seeded by ``(seed, epoch, window)``, so it does not
-    depend on workers or on resuming.
+    depend on workers or on resuming. With ``augment`` each window is seen in a random frame
+    turned about gravity and mirrored half the time (``window.frame``, seeded the same way):
+    features and target in that frame, the graph unchanged.
     """
 
     def __init__(
-        self, sim: LearnedSimulator, noise_std: float, seed: int, correct_positions: bool = False
+        self,
+        sim: LearnedSimulator,
+        noise_std: float,
+        seed: int,
+        correct_positions: bool = False,
+        augment: bool = False,
     ):
         self.sim, self.noise_std, self.seed = sim, noise_std, seed
         self.correct_positions = correct_positions
+        self.augment = augment
 
     def __call__(self, windows: list[Window]) -> Batch:
         graphs = []
@@ -109,9 +118,13 @@ class _Collate:
                 )
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
+            w.frame = None
+            if self.augment:
+                key = zlib.crc32(f"frame/{self.seed}/{w.epoch}/{w.index}".encode())
+                w.frame = random_horizontal_frame(torch.Generator().manual_seed(key))
             with torch.no_grad():
-                graph = self.sim.build_graph(pos_seq, w.walls, w.time, props=w.props)
-                graph.y = self.sim.target_acceleration(pos_seq, target)
+                graph = self.sim.build_graph(pos_seq, w.walls, w.time, props=w.props, frame=w.frame)
+                graph.y = self.sim.target_acceleration(pos_seq, target, w.frame)
             graphs.append(graph)
         batch = Batch.from_data_list(graphs)
         batch.windows = windows  # raw windows, for objectives that run the model on
@@ -138,7 +151,11 @@ class TrajectoryDataModule(L.LightningDataModule):
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
-        seed: seed of the window order and of the noise.
+        seed: seed of the window order, the noise and the frames.
+        augment: see every training window in a random frame turned about gravity (z) and
+            mirrored half the time (positions, velocities, walls and their motion, target), so
+            that a model learns that only the vertical is fixed; validation windows are not
+            turned.
 
     The training windows also hold the future frames that the objective given to
     :meth:`attach` needs (``Objective.future_frames``).
@@ -158,6 +175,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         val_samples: int | None = None,
         trajectories: dict | None = None,
         seed: int = 0,
+        augment: bool = True,
     ) -> None:
         super().__init__()
         if root is None and sample is None:
@@ -177,6 +195,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.extra_steps = 0
         self.trajectories = trajectories
         self.seed = int(seed)
+        if not isinstance(augment, bool):
+            raise InputError(f"data.augment: expected true or false, got {augment!r}")
+        self.augment = augment
         self.sim: LearnedSimulator | None = None
         self.stats: NormalizationStats | None = None
 
@@ -215,10 +236,12 @@ class TrajectoryDataModule(L.LightningDataModule):
         sim.dt.fill_(self.dt)
         self.sim = sim
 
-    def _loader(self, dataset, num_samples, shuffle: bool, noise: float, **kwargs) -> DataLoader:
+    def _loader(
+        self, dataset, num_samples, shuffle: bool, noise: float, augment: bool = False, **kwargs
+    ) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
-        collate = _Collate(self.sim, noise, self.seed, self.correct_positions)
+        collate = _Collate(self.sim, noise, self.seed, self.correct_positions, augment)
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,
@@ -241,6 +264,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.train_samples,
             True,
             self.noise_std,
+            self.augment,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

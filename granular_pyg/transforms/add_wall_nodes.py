@@ -7,16 +7,24 @@ from torch_geometric.data import Data
 from torch_geometric.transforms import BaseTransform
 
 from granular_pyg.errors import InputError
-from granular_pyg.geometry import canonical_normals
+from granular_pyg.geometry import argmin_per_group, canonical_normals
 
-__all__ = ["NORMAL_VARIANTS", "AddWallNodes"]
+__all__ = ["NORMAL_VARIANTS", "WALL_NODE_MODES", "AddWallNodes"]
 
 #: The paper's normal variants: V1 none, V2 single (vertex order), V3 both (ordered by f_o).
 NORMAL_VARIANTS = ("none", "single", "both")
 
+#: Where wall nodes go: ``"triangle"``, one per (particle, triangle) within the cut-off (the
+#: paper's); ``"patch"``, one per (particle, surface patch) at the patch's closest point, the
+#: same whatever the triangles a flat or gently curved surface was cut into
+#: (:func:`~granular_pyg.geometry.surface_patches`).
+WALL_NODE_MODES = ("triangle", "patch")
+
 
 class AddWallNodes(BaseTransform):
-    r"""Add one virtual node per (particle, triangle) pair closer than ``radius``.
+    r"""Add one virtual node per (particle, triangle) pair closer than ``radius`` (``per=
+    "triangle"``), or per (particle, surface patch) pair at the patch's closest point (``per=
+    "patch"``: the triangle of the patch nearest the particle, ties to the lower index).
 
     The node sits at the triangle's closest point to the particle (Eberly), at the walls' pose
     at ``data.time``, and sends one edge to its particle (wall -> particle only). Node features
@@ -47,6 +55,7 @@ class AddWallNodes(BaseTransform):
         normals: ``"none"``, ``"single"`` or ``"both"``.
         normal_scale: factor on the normal features.
         wall_weight: weight a particle's ``k`` wall nodes by ``1 / k``.
+        per: ``"triangle"`` or ``"patch"`` (:data:`WALL_NODE_MODES`).
     """
 
     def __init__(
@@ -55,7 +64,11 @@ class AddWallNodes(BaseTransform):
         normals: str = "both",
         normal_scale: float = 1.0,
         wall_weight: bool = False,
+        per: str = "triangle",
     ) -> None:
+        if per not in WALL_NODE_MODES:
+            raise InputError(f"wall_nodes: expected one of {WALL_NODE_MODES}, got {per!r}")
+        self.per = per
         if normals not in NORMAL_VARIANTS:
             raise InputError(f"normals: expected one of {NORMAL_VARIANTS}, got {normals!r}")
         if not radius > 0:
@@ -72,6 +85,8 @@ class AddWallNodes(BaseTransform):
         pos = data.pos
         num_real = pos.shape[0]
         contacts = data.walls.contacts(pos, self.radius, float(data.time))
+        if self.per == "patch" and contacts.point_idx.numel():
+            contacts = self._nearest_per_patch(pos, contacts, data.walls)
         num_wall = contacts.point_idx.shape[0]
         if self.normals == "none":
             feat = pos.new_zeros((num_wall, 6))
@@ -100,3 +115,13 @@ class AddWallNodes(BaseTransform):
         data.node_weight = torch.cat([pos.new_ones(num_real), weight])
         data.wall_tri = contacts.tri_idx
         return data
+
+    @staticmethod
+    def _nearest_per_patch(pos: torch.Tensor, contacts, walls):
+        """Keep, of each (particle, patch) group of contacts, the one nearest the particle;
+        the result stays sorted by particle, then patch."""
+        patch = walls.patch_of.to(contacts.tri_idx.device)[contacts.tri_idx]
+        group = contacts.point_idx * max(walls.num_patches, 1) + patch
+        dist = torch.linalg.vector_norm(pos[contacts.point_idx] - contacts.closest, dim=1)
+        _, rows = argmin_per_group(dist, group)
+        return type(contacts)(*(col[rows] for col in contacts))

@@ -47,8 +47,9 @@ class PushForward(Objective):
                 props = props[held] if props is not None else None
             else:  # every particle left: the window's own step instead
                 seq, target, time = w.pos_seq, w.target_pos, w.time
-            graph = sim.build_graph(seq, w.walls, time, props=props)
-            graph.y = sim.target_acceleration(seq, target)
+            frame = getattr(w, "frame", None)  # the window's augmentation frame, if any
+            graph = sim.build_graph(seq, w.walls, time, props=props, frame=frame)
+            graph.y = sim.target_acceleration(seq, target, frame)
             graphs.append(graph)
         return Batch.from_data_list(graphs).to(batch.x.device)
 

@@ -47,9 +47,10 @@ class Unrolled(Objective):
                 )
             seq = w.pos_seq.to(device, torch.float64)
             known = torch.cat([w.target_pos[:, None], future], 1).to(device, torch.float64)
-            props = w.props
+            props, frame = w.props, getattr(w, "frame", None)
             for u in range(steps):
-                acc = sim.predict_acceleration(seq, w.walls, w.time + u * dt, props=props).double()
+                t = w.time + u * dt
+                acc = sim.predict_acceleration(seq, w.walls, t, props=props, frame=frame).double()
                 pred = (acc - acc_mean) / acc_std
                 losses.append(masked_mse(pred, sim.target_acceleration(seq, known[:, u]).double()))
                 if u + 1 == steps:
