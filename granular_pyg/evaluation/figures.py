@@ -8,7 +8,7 @@ from matplotlib.figure import Figure
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation.pair import PairEvaluation
 
-__all__ = ["comparison_figure", "variants_figure"]
+__all__ = ["comparison_figure", "discharge_figure", "variants_figure"]
 
 TRUTH = {"ls": "-", "lw": 1.6}
 PRED = {"ls": "--", "lw": 1.6}
@@ -125,6 +125,68 @@ def variants_figure(evaluations: dict[str, PairEvaluation], title: str = ""):
     axes[0].legend(fontsize=8)
     if title:
         fig.suptitle(title)
+    fig.tight_layout()
+    return fig
+
+
+def discharge_figure(ev: PairEvaluation, title: str = ""):
+    """The discharge curve of a hopper: mass of the initial bed that has left (kg) against
+    time (s), LIGGGHTS solid, learned dashed, with the bed's mass and, where the scene's outlet
+    allows it, Beverloo's rate as a straight reference line of that slope through the point
+    where LIGGGHTS's curve passes 20% of the bed (its fit window's start); the fitted windows
+    of both rates are marked.
+
+    Args:
+        ev: the evaluation of one hopper (truth, prediction) pair (``series`` has
+            ``discharged_mass_*``, ``bed_mass``, ``rate_window_*``; ``scalars``
+            ``beverloo_rate``).
+        title: figure title.
+
+    Returns:
+        A matplotlib ``Figure`` (no pyplot state).
+
+    Raises:
+        InputError: an evaluation without discharge curves (not a hopper).
+    """
+    s = ev.series
+    if "discharged_mass_truth" not in s:
+        raise InputError("ev: has no discharge curve; only a hopper's evaluation has one")
+    t = s["times"]
+    bed = float(s["bed_mass"])
+    fig = Figure(figsize=(6.5, 4.2))
+    ax = fig.subplots()
+    ax.plot(t, s["discharged_mass_truth"], color="k", label="LIGGGHTS", **TRUTH)
+    ax.plot(t, s["discharged_mass_pred"], color="tab:red", label="learned", **PRED)
+    ax.axhline(bed, color="0.6", lw=0.8, label=f"initial bed {bed * 1e3:.4g} g")
+    for who, colour in (("truth", "k"), ("pred", "tab:red")):
+        lo, hi = s[f"rate_window_{who}"]
+        rate = ev.scalars.get(f"discharge_rate_{who}", float("nan"))
+        if np.isfinite(lo) and np.isfinite(rate):
+            ax.axvspan(lo, hi, color=colour, alpha=0.06)
+    beverloo = ev.scalars.get("beverloo_rate", float("nan"))
+    start = s["rate_window_truth"][0]
+    if np.isfinite(beverloo) and beverloo > 0 and np.isfinite(start):
+        m0 = float(np.interp(start, t, s["discharged_mass_truth"]))
+        t1 = start + (bed - m0) / beverloo
+        ax.plot([start, t1], [m0, bed], color="tab:blue", lw=1.0, ls=":",
+                label=f"Beverloo {beverloo:.3g} kg/s")
+    truth_rate = ev.scalars.get("discharge_rate_truth", float("nan"))
+    pred_rate = ev.scalars.get("discharge_rate_pred", float("nan"))
+    ax.text(
+        0.02,
+        0.97,
+        f"rate: LIGGGHTS {truth_rate:.3g}, learned {pred_rate:.3g} kg/s\n"
+        f"gone at the end: {ev.scalars.get('discharged_fraction_truth', np.nan):.1%} / "
+        f"{ev.scalars.get('discharged_fraction_pred', np.nan):.1%} of the bed",
+        transform=ax.transAxes,
+        va="top",
+        fontsize=8,
+    )
+    ax.set_ylim(0, 1.08 * bed if bed > 0 else 1.0)
+    _labels(ax, "time (s)", "discharged mass of the initial bed (kg)", "Discharge")
+    ax.legend(fontsize=8, loc="lower right")
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from granular_pyg import metrics
+from granular_pyg.metrics import beverloo, flow
 from granular_pyg.errors import InputError
 from granular_pyg.inference import matching_frames
 from granular_pyg.io import Trajectory
@@ -22,7 +23,19 @@ __all__ = ["PairEvaluation", "evaluate_pair"]
 HOPPER_MIXING_AXIS = 2
 #: Scalars of the metrics that need a scene kind, NaN where a scene of that kind cannot have
 #: them (a drum without a horizontal rotation, a scene of kind ``other``).
-DISCHARGE_SCALARS = ("discharge_rate_truth", "discharge_rate_pred", "discharge_rate_rel_error")
+DISCHARGE_SCALARS = (
+    "discharge_rate_truth",
+    "discharge_rate_pred",
+    "discharge_rate_rel_error",
+    "discharged_fraction_truth",
+    "discharged_fraction_pred",
+    "discharged_fraction_error",
+    "time_to_empty_truth_s",
+    "time_to_empty_pred_s",
+    "beverloo_rate",
+)
+#: Fraction of the initial bed's mass that counts as an emptied hopper (time to empty).
+EMPTY_LEVEL = 0.99
 ANGLE_SCALARS = (
     "angle_of_repose_truth_deg",
     "angle_of_repose_pred_deg",
@@ -186,14 +199,15 @@ def _kind(scene: Scene) -> str:
     return f"a scene of kind {scene.kind!r}"
 
 
-def _mixing_axis(scene: Scene) -> int | None:
-    """The axis that splits the mixing classes: z in a hopper, the horizontal axis across a
-    drum's rotation axis; None for other scenes and drums without a horizontal rotation."""
+def _mixing_axis(scene: Scene) -> int | np.ndarray | None:
+    """What splits the mixing classes: z in a hopper, the horizontal direction across a drum's
+    rotation axis (a vector, whatever the scene's frame); None for other scenes and drums
+    without a horizontal rotation."""
     if scene.kind == "hopper":
         return HOPPER_MIXING_AXIS
     if scene.kind == "drum":
         axis = metrics.drum_axis(scene)
-        return None if axis is None else 1 - axis
+        return None if axis is None else metrics.across_drum_axis(axis)
     return None
 
 
@@ -263,22 +277,47 @@ def _scene_observable(truth, t_pos, p_pos, times, scalars, series, skipped) -> t
         series["discharged_pred"] = metrics.discharged_fraction(p_pos, outflow)
         return "discharged", "fraction of the particles that left"
     outlet_z = metrics.outlet_height(scene)
-    series["discharged_truth"] = metrics.discharged_fraction(t_pos, outlet_z)
-    series["discharged_pred"] = metrics.discharged_fraction(p_pos, outlet_z)
     density = scene.materials.density
     mass = density * 4.0 / 3.0 * math.pi * truth.radii.astype(np.float64) ** 3
+    # Both sides against the same initial bed (the particles above the outlet in the first
+    # frame), not each against the mass it finally let out.
+    bed = flow.bed_mass(t_pos, outlet_z, mass)
+    opened = _opening_time(scene)
+    series["bed_mass"] = np.array(bed)
     for who, pos in (("truth", t_pos), ("pred", p_pos)):
+        curve = flow.discharge_curve(pos, outlet_z, mass)
+        series[f"discharged_mass_{who}"] = curve
+        series[f"discharged_{who}"] = (
+            np.minimum(curve / bed, 1.0) if bed > 0 else np.full(len(times), np.nan)
+        )
         try:
-            rate = metrics.discharge_rate(times, pos, outlet_z, mass)[0]
+            rate, window = flow.discharge_rate(times, pos, outlet_z, mass)
         except InputError:
-            rate = float("nan")
+            rate, window = float("nan"), (float("nan"), float("nan"))
+        series[f"rate_window_{who}"] = np.array(window)
         scalars[f"discharge_rate_{who}"] = float(rate)
+        scalars[f"discharged_fraction_{who}"] = float(series[f"discharged_{who}"][-1])
+        scalars[f"time_to_empty_{who}_s"] = flow.time_to_empty(
+            times, pos, outlet_z, mass, level=EMPTY_LEVEL, since=opened
+        )
     r_t, r_p = scalars["discharge_rate_truth"], scalars["discharge_rate_pred"]
     scalars["discharge_rate_rel_error"] = abs(r_p - r_t) / r_t if r_t > 0 else float("nan")
-    return "discharged", "discharged fraction"
+    scalars["discharged_fraction_error"] = (
+        scalars["discharged_fraction_pred"] - scalars["discharged_fraction_truth"]
+    )
+    scalars["beverloo_rate"] = beverloo.scene_beverloo_rate(scene, truth.radii, outlet_z)
+    series["opening_time"] = np.array(opened)
+    return "discharged", "discharged fraction of the initial bed"
 
 
-def _angles(pos: np.ndarray, axis: int) -> np.ndarray:
+def _opening_time(scene: Scene) -> float:
+    """Recorded time (s) at which the outlet opens: the first wall removal (the lid), 0 when
+    no wall is removed."""
+    removals = [w.removal_time for w in scene.walls if w.removal_time is not None]
+    return float(min(removals, default=0.0))
+
+
+def _angles(pos: np.ndarray, axis: np.ndarray) -> np.ndarray:
     out = np.full(len(pos), np.nan)
     for i, frame in enumerate(pos):
         with contextlib.suppress(InputError):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from granular_pyg.evaluation.figures import comparison_figure
+from granular_pyg.evaluation.figures import comparison_figure, discharge_figure
 from granular_pyg.evaluation.pair import PairEvaluation
 from granular_pyg.io import atomic_write, markdown_table
 
@@ -30,12 +30,19 @@ HEADLINE = {
     "discharge_rate_truth": "kg/s",
     "discharge_rate_pred": "kg/s",
     "discharge_rate_rel_error": "",
+    "beverloo_rate": "kg/s",
+    "discharged_fraction_truth": "",
+    "discharged_fraction_pred": "",
+    "discharged_fraction_error": "",
+    "time_to_empty_truth_s": "s",
+    "time_to_empty_pred_s": "s",
     "angle_of_repose_truth_deg": "deg",
     "angle_of_repose_pred_deg": "deg",
     "angle_of_repose_error_deg": "deg",
     "angle_of_repose_curve_error_deg": "deg",
     "leaked_particles": "",
     "crushed_particles": "",
+    "rollout_wall_s": "s",
 }
 
 
@@ -121,7 +128,7 @@ def write_evaluation(out_dir: str | Path, rollouts: list[EvaluatedRollout], info
             for k, v in sorted(r.evaluation.emd_steps.items())
         ],
     )
-    figures = {}
+    figures, discharge = {}, {}
     writer = _tensorboard(out)
     for i, r in enumerate(rollouts):
         fig = comparison_figure(r.evaluation, f"{r.split} / {r.name}: LIGGGHTS (solid) vs learned")
@@ -133,6 +140,13 @@ def write_evaluation(out_dir: str | Path, rollouts: list[EvaluatedRollout], info
         figures[(r.split, r.name)] = path
         if writer is not None:
             writer.add_figure(f"evaluation/{r.split}/{r.name}", fig, global_step=i)
+        if "discharged_mass_truth" in r.evaluation.series:  # every hopper: its discharge curve
+            fig = discharge_figure(r.evaluation, f"{r.split} / {r.name}")
+            path = out / "figures" / f"{rollout_label(r.split, r.name)}_discharge.png"
+            _save_png(fig, path)
+            discharge[(r.split, r.name)] = path
+            if writer is not None:
+                writer.add_figure(f"discharge/{r.split}/{r.name}", fig, global_step=i)
     if writer is not None:
         for split, values in means.items():
             for name, value in values.items():
@@ -141,8 +155,15 @@ def write_evaluation(out_dir: str | Path, rollouts: list[EvaluatedRollout], info
         writer.close()
     report = out / "report.md"
     with atomic_write(report) as fh:
-        fh.write(_markdown(rollouts, means, info, figures, out))
+        fh.write(_markdown(rollouts, means, info, figures, out, discharge))
     return report
+
+
+def _save_png(fig, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    with atomic_write(path, "wb") as fh:
+        fh.write(buf.getvalue())
 
 
 def _means(rows: list[dict[str, float]]) -> dict[str, float]:
@@ -188,7 +209,7 @@ def _fmt(value: float) -> str:
     return f"{value:.3g}" if abs(value) >= 1e-3 or value == 0 else f"{value:.2e}"
 
 
-def _markdown(rollouts, means, info, figures, out: Path) -> str:
+def _markdown(rollouts, means, info, figures, out: Path, discharge=None) -> str:
     lines = [
         "# Evaluation: learned rollouts against LIGGGHTS",
         "",
@@ -200,6 +221,19 @@ def _markdown(rollouts, means, info, figures, out: Path) -> str:
         "drained and the other has not, the remaining particles' mean squared distance to the "
         "outlet point; errors are absolute differences of the curves, relative for the "
         "discharge rate.",
+        "- discharge (hoppers): the initial bed is the particles above the outlet in the "
+        "rollout's first frame, the same for both sides. `discharge_rate_*` is a line fitted to "
+        "the mass of that bed that has left, from the moment 20% of it has left to the moment "
+        "80% has (or to the rollout's end if it never does, so that a stall lowers the rate); "
+        "`discharged_fraction_*` is the fraction of the bed gone at the rollout's end; "
+        "`time_to_empty_*_s` the time from the outlet's opening until 99% of the bed has left "
+        "(- : never within the rollout); `beverloo_rate` Beverloo's correlation for the scene's "
+        "outlet (circle: 0.58 rho_b sqrt(g) (D - 1.5 d)^{5/2}; wall-to-wall slot: "
+        "1.03 rho_b sqrt(g) L (b - 1.5 d)^{3/2}; rectangle: 1.03 rho_b sqrt(g) (L - 1.5 d) "
+        "(b - 1.5 d)^{3/2}; rho_b = 0.6 x particle density, d the mean diameter), a reference, "
+        "not the truth.",
+        f"- rollout wall time: `rollout_wall_s`, the learned rollout alone "
+        f"({info.get('threads', '?')} torch threads, {info.get('device', 'cpu')}).",
         "- leaked particles: centres that crossed a wall's triangle between two frames (walls "
         "posed at their times), lay outside the walls in their first frame, or left the "
         "simulation box other than through the outflow floor.",
@@ -227,4 +261,8 @@ def _markdown(rollouts, means, info, figures, out: Path) -> str:
     lines += ["", "## Figures (LIGGGHTS solid, learned dashed)", ""]
     for (split, name), path in figures.items():
         lines.append(f"![{split} {name}]({path.relative_to(out)})")
+    if discharge:
+        lines += ["", "## Discharge curves (LIGGGHTS solid, learned dashed, Beverloo dotted)", ""]
+        for (split, name), path in discharge.items():
+            lines.append(f"![{split} {name} discharge]({path.relative_to(out)})")
     return "\n".join(lines) + "\n"

@@ -11,12 +11,15 @@ import numpy as np
 from granular_pyg.errors import InputError
 
 __all__ = [
+    "bed_mass",
+    "discharge_curve",
     "discharge_rate",
     "flow_profile",
     "mixing_classes",
     "mixing_entropy",
     "mixing_entropy_curve",
     "position_mse",
+    "time_to_empty",
 ]
 
 
@@ -39,13 +42,14 @@ def position_mse(truth: np.ndarray, pred: np.ndarray) -> np.ndarray:
     return np.where(count > 0, sq.sum(1) / np.maximum(count, 1), np.nan)
 
 
-def mixing_classes(positions: np.ndarray, frame: int = 30, axis: int = 2) -> np.ndarray:
+def mixing_classes(positions: np.ndarray, frame: int = 30, axis=2) -> np.ndarray:
     """The paper's two mixing classes: ``+1`` above, ``-1`` below the median of one coordinate.
 
     Args:
         positions: ``[T, N, 3]`` (m).
         frame: the frame ``t0`` at which the classes are fixed (paper: 30).
-        axis: the coordinate that splits them (0 = x, 2 = z).
+        axis: the coordinate that splits them (0 = x, 2 = z), or a direction ``[3]`` (the
+            positions' component along it, e.g. across a drum's axis in any frame).
 
     Returns:
         ``[N]`` int8 in ``{+1, -1}``, 0 for particles absent at ``frame``.
@@ -53,7 +57,10 @@ def mixing_classes(positions: np.ndarray, frame: int = 30, axis: int = 2) -> np.
     positions = _check_positions("positions", positions)
     if not 0 <= frame < len(positions):
         raise InputError(f"frame: {frame} is outside the trajectory's {len(positions)} frames")
-    coord = positions[frame, :, axis]
+    if np.ndim(axis) == 0:
+        coord = positions[frame, :, int(axis)]
+    else:
+        coord = positions[frame] @ np.asarray(axis, np.float64).reshape(3)
     present = np.isfinite(coord)
     if not present.any():
         raise InputError(f"positions: no particle is present at frame {frame}")
@@ -66,7 +73,9 @@ def mixing_classes(positions: np.ndarray, frame: int = 30, axis: int = 2) -> np.
 def mixing_entropy(positions: np.ndarray, classes: np.ndarray, bins: int = 9) -> float:
     r"""The paper's mixing entropy (appendix) of one frame, 0 (segregated) to log 2 (mixed).
 
-    The particles' bounding box is cut into ``bins^3`` cells; with :math:`f_\pm` the fraction of
+    The particles' bounding box is cut into ``bins^3`` cells (in the frame of the bed's
+    horizontal principal axes and z, so that turning or mirroring the scene about gravity
+    does not change the cells); with :math:`f_\pm` the fraction of
     each class in a cell, :math:`s = -f_+ \log f_+ - f_- \log f_-` and
     :math:`S = \sum n_{cell} s_{cell} / \sum n_{cell}` (natural log, ``0 log 0 = 0``).
 
@@ -86,6 +95,7 @@ def mixing_entropy(positions: np.ndarray, classes: np.ndarray, bins: int = 9) ->
     pos, cls = positions[keep], classes[keep]
     if len(pos) == 0:
         return float("nan")
+    pos = _in_principal_frame(pos)
     lo, hi = pos.min(0), pos.max(0)
     span = np.where(hi > lo, hi - lo, 1.0)
     cell = np.clip(((pos - lo) / span * bins).astype(np.int64), 0, bins - 1)
@@ -98,6 +108,17 @@ def mixing_entropy(positions: np.ndarray, classes: np.ndarray, bins: int = 9) ->
     with np.errstate(divide="ignore", invalid="ignore"):
         s = -np.nan_to_num(f_plus * np.log(f_plus)) - np.nan_to_num(f_minus * np.log(f_minus))
     return float((n[occupied] * s).sum() / n[occupied].sum())
+
+
+def _in_principal_frame(pos: np.ndarray) -> np.ndarray:
+    """``[N, 3]`` coordinates along the horizontal principal axes of ``pos`` (larger spread
+    first, each axis signed so that its third moment is >= 0), then z: the same numbers for
+    the bed turned about z or mirrored (unless its two horizontal spreads are equal)."""
+    h = pos[:, :2] - pos[:, :2].mean(0)
+    _, vectors = np.linalg.eigh(h.T @ h)
+    coords = h @ vectors[:, ::-1]
+    signs = np.where((coords**3).sum(0) < 0, -1.0, 1.0)
+    return np.column_stack([coords * signs, pos[:, 2]])
 
 
 def mixing_entropy_curve(positions: np.ndarray, classes: np.ndarray, bins: int = 9) -> np.ndarray:
@@ -145,6 +166,36 @@ def flow_profile(
         return (total / count).reshape(len(z), z_bins)
 
 
+def discharge_curve(positions: np.ndarray, outlet_z: float, mass: np.ndarray) -> np.ndarray:
+    """``[T]`` mass (kg) of the initial bed that has left: below ``outlet_z`` or gone.
+
+    The initial bed is the particles present above the outlet in the first frame; a particle
+    already below it (or absent) then is not part of the bed and never counts. Only heights
+    enter, so turning the scene about the vertical or mirroring it changes nothing.
+
+    Args:
+        positions: ``[T, N, 3]`` (m), NaN once gone.
+        outlet_z: outlet height (m).
+        mass: ``[N]`` particle masses (kg).
+    """
+    positions = _check_positions("positions", positions)
+    mass = np.asarray(mass, dtype=np.float64)
+    if mass.shape != positions.shape[1:2]:
+        raise InputError(f"mass: expected shape [{positions.shape[1]}], got {list(mass.shape)}")
+    z = positions[..., 2]
+    bed = np.isfinite(z[0]) & (np.nan_to_num(z[0], nan=-np.inf) >= outlet_z)
+    out = ~(np.nan_to_num(z, nan=-np.inf) >= outlet_z)  # below the outlet or gone
+    return (out & bed) @ np.where(bed, mass, 0.0)
+
+
+def bed_mass(positions: np.ndarray, outlet_z: float, mass: np.ndarray) -> float:
+    """Mass (kg) of the initial bed: the particles above ``outlet_z`` in the first frame of
+    ``positions [T, N, 3]`` (m); ``mass [N]`` (kg)."""
+    z = _check_positions("positions", positions)[0, :, 2]
+    bed = np.isfinite(z) & (np.nan_to_num(z, nan=-np.inf) >= outlet_z)
+    return float(np.asarray(mass, dtype=np.float64)[bed].sum())
+
+
 def discharge_rate(
     times: np.ndarray,
     positions: np.ndarray,
@@ -152,42 +203,76 @@ def discharge_rate(
     mass: np.ndarray,
     window: tuple[float, float] = (0.2, 0.8),
 ) -> tuple[float, tuple[float, float]]:
-    """Mass flow rate (kg/s) through the outlet: a line fitted to the discharged mass.
+    """Mass flow rate (kg/s) through the outlet: a line fitted to the discharged mass of the
+    initial bed (:func:`discharge_curve`).
 
-    The discharged mass (particles below ``outlet_z`` or gone) is fitted against time between the
-    moments ``window[0]`` and ``window[1]`` of the final discharged mass, the steady part of the
-    discharge (Beverloo regime), leaving out the start-up and the last particles.
+    The fit spans the frames from the first at which ``window[0]`` of the *initial bed's* mass
+    has left to the first at which ``window[1]`` has (the steady, Beverloo part, without the
+    start-up and the last particles). Both sides of a comparison are measured against their
+    own initial bed, which is the same bed, not against the mass each finally let out: a
+    rollout that stops with part of its bed inside never reaches ``window[1]``, and its fit
+    then runs on to its last frame, so the stall lowers its rate instead of being cut off.
 
     Args:
         times: ``[T]`` (s).
         positions: ``[T, N, 3]`` (m), NaN once gone.
         outlet_z: outlet height (m).
         mass: ``[N]`` particle masses (kg).
-        window: fractions of the final discharged mass that bound the fit.
+        window: fractions of the initial bed's mass that bound the fit.
 
     Returns:
         ``(rate kg/s, (t_start, t_end) s)`` of the fit.
 
     Raises:
-        InputError: when fewer than three frames lie in the window (too little discharge).
+        InputError: an empty bed, or fewer than three frames in the window (too little
+            discharge).
     """
     positions = _check_positions("positions", positions)
     times = np.asarray(times, dtype=np.float64)
-    mass = np.asarray(mass, dtype=np.float64)
-    if times.shape != positions.shape[:1] or mass.shape != positions.shape[1:2]:
-        raise InputError(
-            f"times {times.shape} / mass {mass.shape} do not fit positions {positions.shape}"
-        )
-    z = positions[..., 2]
-    out = np.isnan(z) | (z < outlet_z)
-    discharged = (out * mass).sum(1)
-    final = discharged[-1]
-    inside = (discharged >= window[0] * final) & (discharged <= window[1] * final)
-    if final <= 0 or inside.sum() < 3:
+    if times.shape != positions.shape[:1]:
+        raise InputError(f"times: expected shape [{len(positions)}], got {list(times.shape)}")
+    discharged = discharge_curve(positions, outlet_z, mass)
+    bed = bed_mass(positions, outlet_z, mass)
+    lo, hi = window[0] * bed, window[1] * bed
+    started = np.flatnonzero(discharged >= lo) if bed > 0 else np.array([], dtype=int)
+    ended = np.flatnonzero(discharged >= hi)
+    first = int(started[0]) if started.size else len(times)
+    last = int(ended[0]) if ended.size else len(times) - 1
+    if last - first + 1 < 3:
         raise InputError(
             "positions: too little discharge for a flow rate (fewer than 3 frames between "
-            f"{window[0]:.0%} and {window[1]:.0%} of the discharged mass); roll out longer"
+            f"{window[0]:.0%} and {window[1]:.0%} of the initial bed's mass); roll out longer"
         )
-    t, m = times[inside], discharged[inside]
+    t, m = times[first : last + 1], discharged[first : last + 1]
     rate = float(np.polyfit(t, m, 1)[0])
     return rate, (float(t[0]), float(t[-1]))
+
+
+def time_to_empty(
+    times: np.ndarray,
+    positions: np.ndarray,
+    outlet_z: float,
+    mass: np.ndarray,
+    level: float = 0.99,
+    since: float = 0.0,
+) -> float:
+    """Time (s) from ``since`` (the outlet's opening) until ``level`` of the initial bed's mass
+    has left (:func:`discharge_curve`); NaN when it never does within ``times``.
+
+    Args:
+        times: ``[T]`` (s).
+        positions: ``[T, N, 3]`` (m), NaN once gone.
+        outlet_z: outlet height (m).
+        mass: ``[N]`` particle masses (kg).
+        level: the fraction of the initial bed that counts as empty (default 99%: a few
+            particles left on a ledge do not keep a hopper from being empty).
+        since: recorded time (s) the clock starts from.
+    """
+    if not 0.0 < level <= 1.0:
+        raise InputError(f"level: expected a fraction in (0, 1], got {level}")
+    times = np.asarray(times, dtype=np.float64)
+    bed = bed_mass(positions, outlet_z, mass)
+    if bed <= 0:
+        return float("nan")
+    done = np.flatnonzero(discharge_curve(positions, outlet_z, mass) >= level * bed * (1 - 1e-12))
+    return float(times[done[0]] - since) if done.size else float("nan")
