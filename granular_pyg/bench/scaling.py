@@ -30,8 +30,10 @@ def _measure(
     repeats: int,
     precision: str = "32",
     model_overrides: tuple[str, ...] = (),
+    threads: int = 2,
 ) -> dict:
-    """One measurement, run in a child process; returns seconds and peak RSS (MiB).
+    """One measurement, run in a child process with ``threads`` torch threads (the bench's
+    ``threads``); returns seconds and peak RSS (MiB).
     ``precision`` is the network's for a model step (``"32"`` or ``"bf16"``);
     ``model_overrides`` are Hydra overrides of the training config's model."""
     from hydra.utils import instantiate
@@ -43,7 +45,7 @@ def _measure(
     from granular_pyg.heap import keep_freed_memory
     from granular_pyg.transforms import radius_graph
 
-    torch.set_num_threads(2)
+    torch.set_num_threads(threads)
     keep_freed_memory()  # as the commands do (a spawned child does not inherit it)
     vertices, faces = funnel_mesh(triangles)
     pos = packed_particles(particles, radius=radius).float()
@@ -114,6 +116,7 @@ def run(
     measured once per network precision in ``precisions`` (``"32"``, ``"bf16"``), for the
     default model changed by ``model_overrides`` (e.g. ``["model.latent=32"]``)."""
     model_overrides = tuple(str(o) for o in model_overrides)
+    threads = torch.get_num_threads()  # the bench's one `threads` setting (bench.yaml)
     rows = []
     precisions = tuple(str(p) for p in precisions)  # `[32,bf16]` on the command line: 32 an int
     model_sweeps = [
@@ -132,7 +135,9 @@ def run(
         measured = []
         for n, t in sizes:
             what = "graph" if kind == "graph" else "model"
-            row = _in_child(what, n, t, particle_radius, repeats, precision, model_overrides)
+            row = _in_child(
+                what, n, t, particle_radius, repeats, precision, model_overrides, threads
+            )
             measured.append(row | {"what": kind, "against": axis})
         xs = [r[axis] for r in measured]
         b = _exponent(xs, [r["seconds"] for r in measured])
