@@ -16,6 +16,7 @@ __all__ = [
     "centre_of_mass_swing",
     "crushed_particles",
     "discharged_fraction",
+    "across_drum_axis",
     "drum_axis",
     "dynamic_angle_of_repose",
     "outlet_height",
@@ -28,17 +29,44 @@ def outlet_height(scene: Scene) -> float:
     return float(scene.params.get("outlet_z", 0.0))
 
 
-def drum_axis(scene: Scene) -> int | None:
-    """Index (0 = x, 1 = y) of the horizontal axis a drum turns about: the largest component of
-    the first rotating wall's ``motion.axis``; None when no wall rotates or the axis is closer to
-    vertical than to x or y (no free surface across it)."""
+def drum_axis(scene: Scene) -> np.ndarray | None:
+    """Unit vector ``[3]`` of the horizontal axis a drum turns about: the first rotating wall's
+    ``motion.axis`` with its vertical part dropped (any horizontal direction: the scene's frame
+    does not matter); None when no wall rotates or the axis is closer to vertical than to
+    horizontal (no free surface across it). Its sign is the axis's, which the angle of repose
+    does not use."""
     for wall in scene.walls:
         motion = wall.motion
         if motion.kind == "rotation" and motion.omega != 0.0:
-            axis = np.abs(np.asarray(motion.axis, dtype=np.float64))
-            index = int(np.argmax(axis))
-            return index if index < 2 else None
+            axis = np.asarray(motion.axis, dtype=np.float64)
+            horizontal = np.array([axis[0], axis[1], 0.0])
+            length = float(np.linalg.norm(horizontal))
+            if length <= abs(axis[2]):
+                return None
+            return horizontal / length
     return None
+
+
+def across_drum_axis(axis) -> np.ndarray:
+    """Unit horizontal vector ``[3]`` orthogonal to a drum's horizontal ``axis`` (an index 0 = x,
+    1 = y, or a vector): the direction the free surface slopes along."""
+    a = _axis_vector(axis)
+    return np.array([-a[1], a[0], 0.0])
+
+
+def _axis_vector(axis) -> np.ndarray:
+    if isinstance(axis, (int, np.integer)):
+        if axis not in (0, 1):
+            raise InputError(f"axis: the drum axis must be horizontal (0 = x or 1 = y), got {axis}")
+        return np.eye(3)[int(axis)]
+    a = np.asarray(axis, dtype=np.float64).reshape(-1)
+    if a.shape != (3,) or not np.isfinite(a).all():
+        raise InputError(f"axis: expected 0, 1 or a horizontal vector [3], got {axis!r}")
+    horizontal = np.array([a[0], a[1], 0.0])
+    length = float(np.linalg.norm(horizontal))
+    if length == 0.0 or length < 0.999 * float(np.linalg.norm(a)):
+        raise InputError(f"axis: the drum axis must be horizontal, got {a.tolist()}")
+    return horizontal / length
 
 
 def discharged_fraction(positions: np.ndarray, outlet_z: float = 0.0) -> np.ndarray:
@@ -86,30 +114,31 @@ def centre_of_mass(positions: np.ndarray) -> np.ndarray:
 
 
 def dynamic_angle_of_repose(
-    positions: np.ndarray, axis: int = 1, bins: int = 12, trim: float = 0.15
+    positions: np.ndarray, axis=1, bins: int = 12, trim: float = 0.15
 ) -> float:
     """Slope (deg) of a drum's free surface: a line fitted to the top particle of each bin.
 
-    Positions are projected onto the plane orthogonal to the drum axis; the bed's horizontal
-    extent (without ``trim`` of it at each end, where the surface curves along the wall) is cut
-    into ``bins`` bins; the highest particle of each bin marks the surface.
+    Positions are projected onto the vertical plane orthogonal to the drum axis; the bed's
+    extent across the axis (without ``trim`` of it at each end, where the surface curves along
+    the wall) is cut into ``bins`` bins; the highest particle of each bin marks the surface.
+    The result does not depend on the scene's frame: turning the drum about gravity, mirroring
+    it, or turning it the other way gives the same angle.
 
     Args:
         positions: ``[N, 3]`` one frame (m); NaN rows are ignored.
-        axis: index of the drum axis (1 = y); gravity along -z.
+        axis: the drum axis: 0 (x), 1 (y) or any horizontal vector ``[3]``
+            (:func:`drum_axis`); gravity along -z.
         bins: surface bins.
         trim: fraction of the bed's width left out at each end.
 
     Returns:
         The angle between the fitted surface and the horizontal, in degrees (0-90).
     """
-    if axis not in (0, 1):
-        raise InputError(f"axis: the drum axis must be horizontal (0 = x or 1 = y), got {axis}")
+    across = across_drum_axis(axis)
     pos = positions[np.isfinite(positions).all(1)]
-    horizontal = 1 - axis
     if len(pos) < 2 * bins:
         raise InputError(f"positions: need at least {2 * bins} particles, got {len(pos)}")
-    x, z = pos[:, horizontal], pos[:, 2]
+    x, z = pos @ across, pos[:, 2]
     lo, hi = np.quantile(x, [trim, 1 - trim])
     edges = np.linspace(lo, hi, bins + 1)
     which = np.digitize(x, edges) - 1
