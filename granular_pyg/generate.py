@@ -10,9 +10,12 @@ atomic). ``jobs`` serial LIGGGHTS runs go at a time.
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import fcntl
 import hashlib
 import json
+import os
 import queue
 import shutil
 import time
@@ -31,23 +34,56 @@ from granular_pyg.config import flatten
 from granular_pyg.dem.liggghts import find_liggghts
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
-from granular_pyg.io import atomic_write, write_trajectory
+from granular_pyg.io import atomic_write, read_trajectory, write_trajectory
 from granular_pyg.progress import show_progress
 
-__all__ = ["generate", "plan_trajectories", "split_counts"]
+__all__ = ["generate", "plan_trajectories", "split_counts", "splits_are_counts"]
 
 
-def split_counts(n: int, fractions: dict[str, float]) -> dict[str, int]:
-    """Trajectories per split: valid and test get ``round(n * f)``, at least one each when
-    ``n >= 3`` and their fraction is positive; train gets the rest."""
-    counts = {}
-    for name in ("valid", "test"):
-        f = float(fractions.get(name, 0.0))
-        counts[name] = max(1 if n >= 3 and f > 0 else 0, round(n * f))
-    counts["train"] = n - counts["valid"] - counts["test"]
+def split_counts(n: int, splits: dict[str, float]) -> dict[str, int]:
+    """Trajectories per split.
+
+    ``splits`` holds either counts or fractions of ``n``:
+
+    - counts, when every value is a whole number written without a decimal point
+      (``{train: 2, valid: 1, test: 3}``): taken as they are; they must add up to ``n``
+      (the command line sets ``n`` from them when ``n=`` is not given);
+    - fractions otherwise (``{train: 0.8, valid: 0.1, test: 0.1}``): valid and test get
+      ``round(n * f)`` (Python's rounding, half to even), at least one each when ``n >= 3``
+      and their fraction is positive; train gets the rest.
+
+    Raises:
+        InputError: unknown split names, negative values, counts that do not add up to ``n``,
+            or no training trajectory.
+    """
+    unknown = set(splits) - {"train", "valid", "test"}
+    if unknown:
+        raise InputError(f"splits: unknown splits {sorted(unknown)}; use train, valid and test")
+    if any(float(v) < 0 for v in splits.values()):
+        raise InputError(f"splits: {dict(splits)} has a negative value")
+    if splits_are_counts(splits):
+        counts = {name: int(splits.get(name, 0)) for name in ("train", "valid", "test")}
+        if sum(counts.values()) != n:
+            raise InputError(
+                f"splits: the counts {counts} add up to {sum(counts.values())} trajectories, "
+                f"but n={n}; leave n= out (it follows the counts) or make them agree"
+            )
+    else:
+        counts = {}
+        for name in ("valid", "test"):
+            f = float(splits.get(name, 0.0))
+            counts[name] = max(1 if n >= 3 and f > 0 else 0, round(n * f))
+        counts["train"] = n - counts["valid"] - counts["test"]
     if counts["train"] < 1:
-        raise InputError(f"splits {dict(fractions)} leave no training trajectory out of n={n}")
+        raise InputError(f"splits {dict(splits)} leave no training trajectory out of n={n}")
     return counts
+
+
+def splits_are_counts(splits) -> bool:
+    """Whether ``splits`` holds counts (every value an integer, not a float) rather than
+    fractions."""
+    values = list(splits.values())
+    return bool(values) and all(isinstance(v, int) and not isinstance(v, bool) for v in values)
 
 
 def _sample(rng: np.random.Generator, low, high):
@@ -172,10 +208,95 @@ def generate(cfg: DictConfig) -> Path:
     """
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out):
+        return _generate(cfg, out)
+
+
+#: The lock file a run holds in its folder while it writes there.
+LOCK_FILE = ".generate.lock"
+
+
+@contextlib.contextmanager
+def folder_lock(out: Path):
+    """Hold an exclusive lock on ``out/.generate.lock`` (``flock``: released when the process
+    ends, however it ends), so that two runs into one folder never share its LIGGGHTS work
+    folders.
+
+    Raises:
+        InputError: another run holds it (naming its process id).
+    """
+    path = out / LOCK_FILE
+    handle = open(path, "a+")  # noqa: SIM115 (held for the run)
+    try:
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            raise InputError(
+                f"out: another generate (process {holder}) is writing into {out}; wait for it "
+                "to finish (then rerun to complete the folder) or choose another out="
+            ) from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(str(os.getpid()))
+        handle.flush()
+        yield
+    finally:
+        handle.close()
+
+
+def _backfill_digests(out: Path, recorded: dict) -> int:
+    """Record the SHA-256 of each finished trajectory whose manifest entry has none (a run
+    killed after writing the file, before the manifest); returns how many were added."""
+    added = 0
+    for file, entry in recorded.items():
+        if entry.get("sha256") or not (out / file).is_file():
+            continue
+        entry["sha256"] = trajectory_digest(read_trajectory(out / file))
+        added += 1
+    return added
+
+
+def _read_manifest(path: Path) -> dict:
+    """The manifest at ``path`` ({} when there is none yet).
+
+    Raises:
+        InputError: a manifest that is not a JSON object (cut off, or edited).
+    """
+    if not path.is_file():
+        return {}
+    try:
+        manifest = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(
+            f"out: {path} is not valid JSON ({exc.msg} at line {exc.lineno}); it was cut off "
+            "or edited: restore it, or delete it and rerun the same command to rebuild it"
+        ) from None
+    if not isinstance(manifest, dict):
+        raise InputError(f"out: {path} is not a dataset manifest (a JSON object); restore it")
+    return manifest
+
+
+def _check_scene(entry: dict) -> None:
+    """Build a scene to run before any LIGGGHTS work: a scene with no particle, or a
+    value its constructor refuses, is an error here rather than LIGGGHTS's."""
+    scene = hydra.utils.instantiate(entry["params"], _convert_="all")
+    if scene.particles.count < 1:
+        raise InputError(
+            f"scene.build.num_particles: {entry['file']} would hold {scene.particles.count} "
+            "particles; a trajectory needs at least 1"
+        )
+
+
+def _generate(cfg: DictConfig, out: Path) -> Path:
     plan = plan_trajectories(cfg)
     path = out / "manifest.json"
-    old = json.loads(path.read_text()) if path.is_file() else {}
+    old = _read_manifest(path)
     recorded = {e["file"]: e for e in old.get("trajectories", [])}
+    backfilled = _backfill_digests(out, recorded)
+    if backfilled:
+        print(f"recorded the SHA-256 of {backfilled} finished trajectories the manifest lacked")
     manifest = _manifest(cfg, plan, recorded)
     _check_same_dataset(path, manifest)
     with atomic_write(path) as fh:
@@ -183,6 +304,8 @@ def generate(cfg: DictConfig) -> Path:
     todo = [e for e in plan if not (out / e["file"]).exists()]
     if todo:
         find_liggghts(cfg.get("liggghts"))  # before any work: a clear error if it is missing
+        for entry in todo:
+            _check_scene(entry)
     print(f"{cfg.scene.name}: {len(plan) - len(todo)} of {len(plan)} trajectories present in {out}")
     jobs = max(1, int(cfg.jobs))
     slots: queue.Queue = queue.Queue()
@@ -263,7 +386,11 @@ def _manifest(cfg: DictConfig, plan: list[dict], recorded: dict, timings: dict |
         "family": family,
         "n": len(plan),
         "seed": int(cfg.seed),
-        "split_fractions": {k: float(v) for k, v in cfg.splits.items()},
+        # As given: fractions (floats) or counts (integers).
+        "split_fractions": {
+            k: (int(v) if splits_are_counts(cfg.splits) else float(v))
+            for k, v in cfg.splits.items()
+        },
         "scene_config": OmegaConf.to_container(cfg.scene, resolve=True),
         "splits": {
             s: [e["file"] for e in plan if e["split"] == s] for s in ("train", "valid", "test")
@@ -286,9 +413,23 @@ def _without_ranges_if_asked(cfg: DictConfig) -> DictConfig:
     return cfg
 
 
+def _n_from_counts(cfg: DictConfig) -> DictConfig:
+    """``splits`` given as counts without ``n=`` on the command line: ``n`` is their sum."""
+    if not splits_are_counts(cfg.splits):
+        return cfg
+    try:
+        overrides = HydraConfig.get().overrides.task
+    except ValueError:  # not inside a Hydra app
+        return cfg
+    if not any(o.replace(" ", "").lstrip("+~").startswith("n=") for o in overrides):
+        OmegaConf.set_struct(cfg, False)
+        cfg.n = sum(int(v) for v in cfg.splits.values())
+    return cfg
+
+
 @command("generate")
 def main(cfg: DictConfig) -> None:
-    generate(_without_ranges_if_asked(cfg))
+    generate(_n_from_counts(_without_ranges_if_asked(cfg)))
 
 
 if __name__ == "__main__":
