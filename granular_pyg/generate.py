@@ -18,6 +18,8 @@ import json
 import os
 import queue
 import shutil
+import sys
+import tempfile
 import time
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from pathlib import Path
@@ -29,7 +31,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from tqdm.auto import tqdm
 
-from granular_pyg.cli import command
+from granular_pyg.cli import EXIT_INPUT_ERROR, command
 from granular_pyg.config import flatten
 from granular_pyg.dem.liggghts import find_liggghts
 from granular_pyg.dem.simulate import simulate
@@ -432,5 +434,44 @@ def main(cfg: DictConfig) -> None:
     generate(_n_from_counts(_without_ranges_if_asked(cfg)))
 
 
+def scene_file_arguments(argv: list[str]) -> list[str]:
+    """``argv`` with ``scene=<a YAML file>`` (a path: it has a ``/`` or ends in ``.yaml``)
+    turned into what Hydra understands: the file copied into a fresh config folder's ``scene/``
+    and ``--config-dir=<that folder> scene=<its name>``, so a scene file anywhere (outside a
+    checkout, with a wheel install) works. Names of shipped scenes (``scene=hopper``) pass
+    unchanged.
+
+    Raises:
+        InputError: the path names no file.
+    """
+    out, extra = [], []
+    for arg in argv:
+        key, _, value = arg.partition("=")
+        if key.lstrip("+") != "scene" or not ("/" in value or value.endswith((".yaml", ".yml"))):
+            out.append(arg)
+            continue
+        path = Path(value).expanduser()
+        if not path.is_file():
+            raise InputError(
+                f"scene: {value} is not a file; give an existing scene YAML (a copy of "
+                "conf/scene/mesh.yaml) or the name of a shipped scene (scene=hopper)"
+            )
+        from granular_pyg.config import CONF_DIR
+
+        shipped = (CONF_DIR / "scene" / f"{path.stem}.yaml").exists()
+        name = f"{path.stem}_file" if shipped else path.stem  # the shipped one would win
+        folder = Path(tempfile.mkdtemp(prefix="granular_pyg_scene_"))
+        (folder / "scene").mkdir()
+        shutil.copyfile(path, folder / "scene" / f"{name}.yaml")
+        extra.append(f"--config-dir={folder}")
+        out.append(f"{key}={name}")
+    return extra + out
+
+
 if __name__ == "__main__":
+    try:
+        sys.argv[1:] = scene_file_arguments(sys.argv[1:])
+    except InputError as err:
+        print(f"error: {err}", file=sys.stderr)
+        sys.exit(EXIT_INPUT_ERROR)
     main()
