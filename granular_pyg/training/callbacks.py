@@ -1,10 +1,16 @@
-"""Callbacks: validation rollouts with EMD, position MSE and a figure in TensorBoard."""
+"""Callbacks: validation rollouts (by epoch, optimiser steps or wall time) with EMD, position
+MSE and a figure in TensorBoard."""
 
 from __future__ import annotations
 
+import time
+
 import lightning as L
 import numpy as np
+import torch
 from matplotlib.figure import Figure
+
+from granular_pyg.errors import InputError
 
 from granular_pyg.inference import available_steps, matching_frames, rollout_trajectory
 from granular_pyg.metrics import emd, outlet_point
@@ -45,25 +51,68 @@ def _emd(truth: np.ndarray, pred: np.ndarray, sink: np.ndarray | None) -> float:
 
 
 class RolloutValidation(L.Callback):
-    """Every ``every_n_epochs`` epochs, roll the model out ``steps`` learned steps on a
-    validation trajectory and log ``val_rollout/emd`` (W2^2, m^2, at the last step and at
-    steps 2^i), ``val_rollout/position_mse`` (m^2) and a figure of the last step.
+    """Roll the model out ``steps`` learned steps on a validation trajectory and log
+    ``val_rollout/emd`` (W2^2, m^2, at the last step and at steps 2^i),
+    ``val_rollout/position_mse`` (m^2) and a figure of the last step.
+
+    When: after every ``every_n_epochs``-th validation epoch, and, independently, during
+    training every ``every_n_steps`` optimiser steps and/or every ``every_seconds`` seconds of
+    wall time (a short fine-tuning run whose epochs take minutes still sees its rollouts);
+    ``None`` switches a trigger off.
 
     Args:
-        every_n_epochs: rollout frequency.
+        every_n_epochs: rollout after every n-th validation epoch, or None.
         steps: learned steps (fewer if the trajectory ends first).
         trajectory: index of the validation trajectory.
+        every_n_steps: rollout every n optimiser steps, or None.
+        every_seconds: rollout every so many seconds of training (s), or None.
     """
 
-    def __init__(self, every_n_epochs: int = 1, steps: int = 50, trajectory: int = 0) -> None:
+    def __init__(
+        self,
+        every_n_epochs: int | None = 1,
+        steps: int = 50,
+        trajectory: int = 0,
+        every_n_steps: int | None = None,
+        every_seconds: float | None = None,
+    ) -> None:
+        for name, value in (
+            ("every_n_epochs", every_n_epochs),
+            ("every_n_steps", every_n_steps),
+            ("every_seconds", every_seconds),
+        ):
+            if value is not None and not value > 0:
+                raise InputError(
+                    f"rollout_validation.{name}: expected a positive number or null, got {value}"
+                )
         self.every_n_epochs, self.steps, self.trajectory = every_n_epochs, steps, trajectory
+        self.every_n_steps, self.every_seconds = every_n_steps, every_seconds
+        self._last_step, self._last_time = 0, time.perf_counter()
+        self.rollouts = 0
+
+    def on_train_start(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        self._last_step, self._last_time = trainer.global_step, time.perf_counter()
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        step = trainer.global_step
+        due_steps = self.every_n_steps is not None and step - self._last_step >= self.every_n_steps
+        due_time = (
+            self.every_seconds is not None
+            and time.perf_counter() - self._last_time >= self.every_seconds
+        )
+        if due_steps or due_time:
+            self._last_step, self._last_time = step, time.perf_counter()
+            self._rollout(trainer, pl_module)
 
     def on_validation_epoch_end(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
-        if trainer.sanity_checking or trainer.fast_dev_run:
+        if trainer.sanity_checking or self.every_n_epochs is None:
             return
         if (trainer.current_epoch + 1) % self.every_n_epochs:
             return
-        if not trainer.is_global_zero:
+        self._rollout(trainer, pl_module)
+
+    def _rollout(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
+        if trainer.fast_dev_run or not trainer.is_global_zero:
             return
         data = trainer.datamodule.val_set
         traj = data.trajs[self.trajectory]
@@ -71,11 +120,13 @@ class RolloutValidation(L.Callback):
         was_training = sim.training
         sim.eval()
         available = available_steps(sim, traj)
-        rollout = rollout_trajectory(sim, traj, min(self.steps, available), progress=False)
+        with torch.no_grad():
+            rollout = rollout_trajectory(sim, traj, min(self.steps, available), progress=False)
         sim.train(was_training)
         first, steps = rollout.metadata["initial_frames"], rollout.metadata["steps"]
         if steps == 0:
             return
+        self.rollouts += 1
         pred = rollout.positions[first:]
         truth = traj.positions[matching_frames(traj, rollout)[first:]]
         both = np.isfinite(truth).all(-1) & np.isfinite(pred).all(-1)

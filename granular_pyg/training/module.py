@@ -11,7 +11,7 @@ from torch_geometric.data import Batch
 
 from granular_pyg.errors import positive_number
 from granular_pyg.simulator import LearnedSimulator
-from granular_pyg.training.objectives import Objective, OneStep, masked_mse
+from granular_pyg.training.objectives import Mixture, Objective, OneStep, masked_mse
 
 __all__ = ["SimulatorModule"]
 
@@ -62,7 +62,33 @@ class SimulatorModule(L.LightningModule):
     def training_step(self, batch: Batch, batch_idx: int) -> torch.Tensor:
         loss = self.objective.loss(self.sim, batch, self._generator())
         self.log("train/loss", loss, prog_bar=True, batch_size=batch.num_graphs, sync_dist=True)
+        # Each objective's loss apart (its epoch mean over the batches it took): a mixture's
+        # parts differ by orders of magnitude, and their sum hides which one moves.
+        self.log(
+            f"train/loss_{self.objective_name()}",
+            loss.detach(),
+            on_step=False,
+            on_epoch=True,
+            batch_size=batch.num_graphs,
+            sync_dist=True,
+        )
         return loss
+
+    def objective_name(self) -> str:
+        """The name of the objective this optimiser step's batch takes: a
+        :class:`~granular_pyg.training.objectives.Mixture` part's config key (``unrolled``,
+        ``push_forward``) or ``one_step`` for the rest; another objective's class name in
+        snake case. Draws from its own copy of the step's generator, so the loss's draws do not
+        change."""
+        objective = self.objective
+        if isinstance(objective, Mixture):
+            picked = objective.pick(self._generator())
+            for name, part in objective.parts.items():
+                if part is picked:
+                    return name
+            return "one_step"
+        name = type(objective).__name__
+        return "".join(f"_{c.lower()}" if c.isupper() else c for c in name).lstrip("_")
 
     def validation_step(self, batch: Batch, batch_idx: int) -> torch.Tensor:
         loss = masked_mse(self.sim(batch), batch.y)
