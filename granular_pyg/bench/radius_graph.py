@@ -1,4 +1,5 @@
-"""Radius-graph backends on packed particles: ``scipy`` against ``torch_cluster``.
+"""Suite ``radius_graph``: the radius-graph backends on packed particles, ``scipy`` against
+``torch_cluster``.
 
 Times :func:`granular_pyg.transforms.radius_graph.radius_graph` with each backend (the whole
 function: candidate search, exact test, both directions, sort) and bare
@@ -7,7 +8,8 @@ output over the raw search shows. Points sit on a cubic lattice of spacing 3 mm 
 jitter (+-10 % of a spacing), float32, like packed 3 mm particles; the cut-off is 2.5 spacings
 (58-68 neighbours per point, fewer at the surface).
 
-``python -m granular_pyg.bench.radius_graph`` prints the table.
+``python -m granular_pyg.bench suite=radius_graph`` writes the table (``report.md``) and the
+times (``results.json``); the bench's ``threads`` sets the torch threads.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from collections.abc import Callable
 
 import torch
 
+from granular_pyg.bench.report import SuiteResult, Target
 from granular_pyg.io import markdown_table
 from granular_pyg.transforms.radius_graph import radius_graph
 
@@ -66,7 +69,6 @@ def measure(
     """
     from scipy.spatial import cKDTree
 
-    torch.set_num_threads(2)
     radius = radius_in_spacings * SPACING
     rows = []
     for n in num_points:
@@ -124,5 +126,23 @@ def format_table(rows: list[dict]) -> str:
     return markdown_table(columns, cells, align="rrrrrrrc")
 
 
-if __name__ == "__main__":
-    print(format_table(measure()))
+def run(
+    num_points: tuple[int, ...] = (2000, 10000, 50000),
+    radius_in_spacings: float = 2.5,
+    repeats: int = 5,
+) -> SuiteResult:
+    """The suite: :func:`measure`'s rows, the times per point count, and the target that both
+    backends return the same edges."""
+    rows = measure(tuple(num_points), radius_in_spacings, repeats)
+    results = {}
+    for row in rows:
+        n = row["num_points"]
+        for key in ("scipy_s", "torch_cluster_s", "query_pairs_s"):
+            results[f"{n}/{key}"] = row[key]
+    same = float(all(row["same_edges"] for row in rows))
+    return SuiteResult(
+        rows=rows,
+        results=results,
+        targets=[Target("backends return the same edges", same, ">=", 1.0)],
+        notes=format_table(rows),
+    )

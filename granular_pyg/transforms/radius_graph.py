@@ -369,7 +369,7 @@ def radius_graph(
       it; on the CPU the search is uncapped (it costs the same).
     - ``"auto"``: ``"scipy"`` on the CPU, ``"torch_cluster"`` on CUDA (``"scipy"`` where
       torch_cluster is not installed). On the CPU scipy is
-      faster: ``python -m granular_pyg.bench.radius_graph`` (2 cores, 2 torch threads,
+      faster: ``python -m granular_pyg.bench suite=radius_graph`` (2 cores, 2 torch threads,
       float32 points on a jittered 3 mm lattice, radius 7.5 mm, 58-68 neighbours per point;
       whole function, median of 5 after a warm-up) took 7.4 / 45 / 221 ms with scipy against
       14.5 / 82 / 439 ms with torch_cluster at 2,000 / 10,000 / 50,000 points (1.8-2.0x).

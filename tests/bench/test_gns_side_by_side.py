@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from granular_pyg.bench.gns_side_by_side import (
+from granular_pyg.geometry import closest_point_on_triangles
+from granular_pyg.io import read_trajectory
+from granular_pyg.samples import sample_files
+from tools.gns_side_by_side import (
     GNS_GRAIN_TYPE,
     GNS_KINEMATIC_TYPE,
     convert,
     sample_triangles,
 )
-from granular_pyg.geometry import closest_point_on_triangles
-from granular_pyg.io import read_trajectory
-from granular_pyg.samples import sample_files
 
 SPLITS = ("train", "valid", "test")
 METADATA_KEYS = {

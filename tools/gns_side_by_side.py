@@ -1,8 +1,9 @@
-"""``python -m granular_pyg.bench.gns_side_by_side``: training and inference steps of this
+"""``python -m tools.gns_side_by_side`` (from the checkout's root; not part of the installed
+package, as it needs a gns checkout): training and inference steps of this
 simulator and of geoelements/gns (a PyTorch + PyG GNS whose walls are kinematic particles), side
 by side on the same bundled-hopper windows at matched size::
 
-    python -m granular_pyg.bench.gns_side_by_side --gns /tmp/gns [--steps 5] [--threads 2] \\
+    python -m tools.gns_side_by_side --gns /tmp/gns [--steps 5] [--threads 2] \\
         [--precision 32|bf16] [--out outputs/gns_side_by_side]
 
 ``--gns`` is a checkout of https://github.com/geoelements/gns (the folder holding ``gns/``); its
@@ -726,7 +727,7 @@ def _write_report(out: Path, result: dict) -> None:
     ours_precision = "bf16 (bf16-mixed training)" if bf16 else "float32"
     text = f"""# Side by side with geoelements/gns
 
-{command_header("granular_pyg.bench.gns_side_by_side")}
+{command_header("tools.gns_side_by_side")}
 
 {_table(rows)}
 
