@@ -57,11 +57,11 @@ def test_every_config_group_composes(override):
 @pytest.mark.parametrize(
     "overrides",
     [["model=v1"], ["model=v2"], ["model=v3"]]
-    + [["model=v3", f"model/processor={p}"] for p in ("gns", "bgnn", "attention")]
+    + [["model=v3", f"model/processor={p}"] for p in ("gns", "bgnn", "attention", "equivariant")]
     + [["model=v3", "objective=push_forward", "objective.parts.push_forward.share=1.0"]]
     + [["model=v3", "objective=unrolled", "objective.parts.unrolled.steps=2"]]
     + [["model=v3", "objective=[unrolled,push_forward]"]],
-    ids=["v1", "v2", "v3", "gns", "bgnn", "attention", "push_forward", "unroll", "mixture"],
+    ids=["v1", "v2", "v3", "gns", "bgnn", "attention", "equivariant", "push_forward", "unroll", "mixture"],
 )
 def test_fast_dev_run_on_the_bundled_sample(tmp_path, overrides):
     metrics = train(compose("train", [*SMALL, *overrides, "trainer.fast_dev_run=true"]), tmp_path)
