@@ -348,9 +348,10 @@ def test_the_readme_and_the_architecture_show_commands():
 def test_config_comments_name_each_shipped_models_own_recipe():
     for path in sorted(CONF_DIR.rglob("*.yaml")):
         for line in path.read_text().splitlines():
-            shipped = re.search(r"pretrained:(\w+)", line)
-            recipe = re.search(r"\+experiment=(\w+)", line.split("#", 1)[-1])
-            if shipped and recipe and "#" in line and shipped.group(1) in RECIPES:
+            value, _, comment = line.partition("#")  # a value pretrained:<name>, its comment
+            shipped = re.search(r"pretrained:(\w+)", value)
+            recipe = re.search(r"\+experiment=(\w+)", comment)
+            if shipped and recipe and shipped.group(1) in RECIPES:
                 assert recipe.group(1) == RECIPES[shipped.group(1)], f"{path.name}: {line}"
 
 
