@@ -72,3 +72,15 @@ def test_a_setting_is_named_by_its_run_folder_or_pretrained_name():
     run = _label("outputs/pareto/latent32/checkpoints/last.ckpt", config, 8)
     assert run == "pareto/latent32: attention, latent 32, R 5 mm, k 8"
     assert _label("pretrained:hopper", config, 4).startswith("pretrained/hopper: attention")
+
+
+def test_its_defaults_are_checkpoints_and_trajectories_a_fresh_checkout_has():
+    from granular_pyg.config import compose
+    from granular_pyg.pretrained import resolve_checkpoint
+
+    run = compose("bench", ["suite=pareto"]).suite.run
+    assert run.trajectories is None  # the bundled sample's test trajectories
+    assert len(run.ckpts) >= 2
+    for ckpt in run.ckpts:
+        assert str(ckpt).startswith("pretrained:")
+        assert resolve_checkpoint(ckpt).is_file()
