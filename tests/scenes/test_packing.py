@@ -70,7 +70,7 @@ def test_a_region_too_small_for_its_particles_is_made_taller_or_refused():
     assert packing.region_hi[2] == pytest.approx(solid / 0.2 / 0.02**2)
     assert packing.fraction == pytest.approx(0.2)
     assert _overlaps(packing.positions, packing.radii) == 0
-    with pytest.raises(InputError, match=r"only \d+ of 200 particles fit .* make the region taller"):
+    with pytest.raises(InputError, match=r"only \d+ of 200 particles fit .* region taller"):
         pack_particles(spec, seed=0, ceiling=0.02, max_rounds=30)
 
 

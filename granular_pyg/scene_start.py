@@ -1,0 +1,96 @@
+"""A learned rollout's start from a Scene alone, without any DEM frame.
+
+The particles are placed without overlap in the Scene's insertion region
+(:func:`granular_pyg.scenes.packing.pack_particles`, as LIGGGHTS's ``insert/pack``) at rest,
+at the start of the fill: recorded time ``-settle_time`` (``t = 0`` is where LIGGGHTS starts
+recording, after its fill and settle). A model rolled out from there fills, settles, opens the
+outlet (the lid's removal time) and discharges on its own: the whole job, network alone.
+
+``python -m granular_pyg.rollout ckpt=pretrained:hopper scene=hopper`` (no ``trajectory=``)
+starts here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from granular_pyg.errors import InputError
+from granular_pyg.io import Trajectory
+from granular_pyg.scenes import Scene
+from granular_pyg.scenes.packing import MAX_FRACTION, pack_particles
+
+__all__ = ["scene_start", "start_from_scene_config", "whole_job_steps"]
+
+
+def scene_start(
+    scene: Scene,
+    history: int,
+    frames_per_step: int = 1,
+    seed: int = 0,
+    max_fraction: float = MAX_FRACTION,
+) -> Trajectory:
+    """The initial states of a rollout from ``scene`` alone: ``history * frames_per_step + 1``
+    frames ``scene.frame_dt`` apart from recorded time ``-scene.settle_time``, every one the
+    same packing at rest (zero velocities), so the learned history says "at rest".
+
+    Args:
+        scene: the Scene (walls, insertion region, times).
+        history: the model's history ``H`` (its velocities need ``H + 1`` positions).
+        frames_per_step: saved frames per learned step ``k`` (the model's ``dt / frame_dt``).
+        seed: the packing's seed.
+        max_fraction: solid fraction of the region above which its top rises
+            (:func:`~granular_pyg.scenes.packing.pack_particles`).
+
+    Returns:
+        A Trajectory with the Scene; metadata ``start: "scene"``, the seed and the region used.
+    """
+    if history < 1 or frames_per_step < 1:
+        raise InputError(
+            f"history ({history}) and frames_per_step ({frames_per_step}) must be at least 1"
+        )
+    packing = pack_particles(scene.particles, seed=seed, max_fraction=max_fraction)
+    frames = history * frames_per_step + 1
+    times = -float(scene.settle_time) + float(scene.frame_dt) * np.arange(frames)
+    positions = np.broadcast_to(packing.positions, (frames, *packing.positions.shape))
+    return Trajectory(
+        positions=positions.astype(np.float32),
+        velocities=np.zeros((frames, *packing.positions.shape), np.float32),
+        radii=packing.radii.astype(np.float32),
+        ids=np.arange(1, len(packing.radii) + 1, dtype=np.int64),
+        times=times,
+        scene=scene,
+        metadata={
+            "start": "scene",
+            "packing_seed": int(seed),
+            "packing_region_lo": packing.region_lo.tolist(),
+            "packing_region_hi": packing.region_hi.tolist(),
+            "packing_fraction": float(packing.fraction),
+        },
+    )
+
+
+def whole_job_steps(scene: Scene, history: int, frames_per_step: int) -> int:
+    """Learned steps from :func:`scene_start`'s last initial state to the end of the Scene's
+    recorded time (fill + settle + the recorded ``duration``)."""
+    dt = frames_per_step * float(scene.frame_dt)
+    total = float(scene.settle_time) + float(scene.duration)
+    return max(1, round(total / dt) - history)
+
+
+def start_from_scene_config(scene_cfg, sim, seed: int = 0, steps: int | None = None):
+    """``(start, steps)`` for ``rollout`` / ``evaluate`` given ``scene=<name or file>`` and no
+    trajectory: the Scene built from its config (``scene.build``), :func:`scene_start` for the
+    model ``sim`` (its history and step), and ``steps`` or, when None, the whole job
+    (:func:`whole_job_steps`)."""
+    import hydra
+    from omegaconf import OmegaConf
+
+    from granular_pyg.errors import whole_number
+    from granular_pyg.inference import time_step_multiple
+
+    build = OmegaConf.to_container(scene_cfg.build, resolve=True)
+    scene = hydra.utils.instantiate(build, _convert_="all")
+    k = time_step_multiple(sim, float(scene.frame_dt))
+    start = scene_start(scene, sim.history, k, seed=whole_number("seed", seed))
+    total = whole_job_steps(scene, sim.history, k) if steps is None else whole_number("steps", steps)
+    return start, total
