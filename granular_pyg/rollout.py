@@ -48,15 +48,22 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     torch.set_num_threads(cfg.threads)
     out = check_output(cfg.out, [cfg.trajectory, resolve_checkpoint(cfg.ckpt)], cfg.overwrite)
     sim, config = load_simulator(cfg.ckpt)
-    source = Path(cfg.trajectory) if cfg.trajectory else default_trajectory(config)
-    out = check_output(out, [source], cfg.overwrite)
-    truth = read_trajectory(source)
-    warn_outside_training(config, truth, str(source))
+    steps = cfg.steps
+    if cfg.get("scene") and not cfg.trajectory:  # the whole job from the scene file alone
+        from granular_pyg.scene_start import start_from_scene_config
+
+        truth, steps = start_from_scene_config(cfg.scene, sim, cfg.get("seed", 0), cfg.steps)
+        source = Path(f"scene_{cfg.scene.name}")
+    else:
+        source = Path(cfg.trajectory) if cfg.trajectory else default_trajectory(config)
+        out = check_output(out, [source], cfg.overwrite)
+        truth = read_trajectory(source)
+        warn_outside_training(config, truth, str(source))
     try:
         pred = rollout_trajectory(
             sim,
             truth,
-            cfg.steps,
+            steps,
             cfg.start_frame,
             progress=cfg.progress,
             dtype=DTYPES[cfg.dtype],
