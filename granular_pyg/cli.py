@@ -17,6 +17,7 @@ import functools
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 import hydra
 from hydra.errors import HydraException, InstantiationException
@@ -27,14 +28,27 @@ from omegaconf.errors import (
     OmegaConfBaseException,
 )
 
-from granular_pyg.config import CONF_DIR
-from granular_pyg.errors import InputError, NonFiniteError
+from granular_pyg.config import CONF_DIR, flatten
+from granular_pyg.errors import InputError, NonFiniteError, whole_number
 from granular_pyg.heap import keep_freed_memory
 
-__all__ = ["EXIT_INPUT_ERROR", "command", "debugging", "reports_errors"]
+__all__ = [
+    "EXIT_INPUT_ERROR",
+    "EXIT_INTERRUPTED",
+    "check_booleans",
+    "command",
+    "debugging",
+    "reports_errors",
+    "task_overrides",
+]
 
 #: Exit status of a command stopped by bad input or an expected failure.
 EXIT_INPUT_ERROR = 2
+#: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
+EXIT_INTERRUPTED = 130
+#: Options whose default is true/false but which take other values too (Lightning's
+#: ``save_last`` takes ``link``).
+NOT_ONLY_BOOLEAN = frozenset({"checkpoint.save_last"})
 
 
 def debugging() -> bool:
@@ -74,9 +88,19 @@ def _expected(exc: BaseException) -> BaseException | None:
             return exc
         if (wrapped := _config_value_error(exc)) is not None:
             return wrapped
+        if (wrapped := _lightning_config_error(exc)) is not None:
+            return wrapped
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__
     return None
+
+
+def _lightning_config_error(exc: BaseException) -> InputError | None:
+    """Lightning's MisconfigurationException (a bad ``trainer.*`` value) as one line."""
+    if type(exc).__name__ != "MisconfigurationException":
+        return None
+    first = " ".join(str(exc).split())
+    return InputError(f"trainer: {first} (check the trainer.* values)")
 
 
 def _message(exc: BaseException) -> str:
@@ -97,6 +121,12 @@ def reports_errors(func: Callable) -> Callable:
     def run(*args, **kwargs):
         try:
             return func(*args, **kwargs)
+        except KeyboardInterrupt as exc:
+            if debugging():
+                raise
+            said = str(exc) or "nothing of this run was kept beyond the files it had finished"
+            print(f"error: interrupted (Ctrl-C); {said}", file=sys.stderr)
+            sys.exit(EXIT_INTERRUPTED)
         except Exception as exc:
             expected = _expected(exc)
             if expected is None or debugging():
@@ -132,6 +162,84 @@ def composition_message(exc: BaseException) -> str:
     return text.replace("See https", "see https") or type(exc).__name__
 
 
+def task_overrides() -> list[str]:
+    """The command line's ``key=value`` overrides of the running Hydra job (one job's, in a
+    multirun); an empty list outside a Hydra app."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return []
+    return list(HydraConfig.get().overrides.task)
+
+
+def _group_overrides(overrides: list[str]) -> list[str]:
+    """The overrides that choose a config group (``model=v1``, ``+experiment=finetune``): a key
+    that names a folder of ``conf/``."""
+    chosen = []
+    for override in overrides:
+        key = override.split("=", 1)[0].lstrip("+~").split("@")[0]
+        if "=" in override and key and (CONF_DIR / key).is_dir():
+            chosen.append(override)
+    return chosen
+
+
+def check_booleans(cfg, reference) -> None:
+    """Refuse a value other than true/false for an option whose default is true or false
+    (``overwrite=no``, ``wall_guard=flase``: non-empty strings, which Python takes as true),
+    and a ``threads`` that is not a whole number >= 1.
+
+    Args:
+        cfg: the composed config of the run.
+        reference: the same config composed with only the command line's group choices (the
+            defaults of every option).
+
+    Raises:
+        InputError: naming the option, the value and the two values it takes.
+    """
+    defaults = flatten(OmegaConf.to_container(reference, resolve=False))
+    for key, default in defaults.items():
+        if not isinstance(default, bool) or key in NOT_ONLY_BOOLEAN or key.startswith("hydra."):
+            continue
+        value = OmegaConf.select(cfg, key, default=default, throw_on_missing=False)
+        if not isinstance(value, bool):
+            raise InputError(f"{key}: expected true or false, got {value!r}; write {key}=true or {key}=false")
+    if "threads" in cfg and not OmegaConf.is_missing(cfg, "threads"):
+        whole_number("threads", cfg.threads, minimum=1)
+
+
+def _check_run_folder(cfg) -> None:
+    """Refuse a run folder (``hydra.run.dir``) that cannot be created, before Hydra tries."""
+    try:
+        folder = Path(str(cfg.hydra.run.dir))
+    except Exception:  # an interpolation only the run resolves: Hydra reports its own
+        return
+    existing = folder.absolute()
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if existing.is_dir() and not os.access(existing, os.W_OK | os.X_OK):
+        raise InputError(
+            f"hydra.run.dir: cannot create the run folder {folder} ({existing} is not writable); "
+            "run from a writable folder or pass hydra.run.dir=<a writable folder>"
+        )
+
+
+def _non_ascii_message(argv: list[str]) -> str | None:
+    """The fix for an override Hydra's lexer refused because of a character it does not take
+    unquoted (``trajectory=/tmp/données/x.h5``), or None."""
+    for arg in argv:
+        odd = [c for c in arg if ord(c) > 127]
+        if odd and "=" in arg and not any(q in arg for q in "'\""):
+            key, value = arg.split("=", 1)
+            return (
+                f"{key}: Hydra's command-line syntax does not take {odd[0]!r} unquoted in "
+                f"{value!r}; quote the value: '{key}=\"{value}\"'"
+            )
+    return None
+
+
+_PRECHECKED = {"done": False}
+
+
 def _precheck(config_name: str, argv: list[str]) -> None:
     """Compose ``argv``'s overrides once and report a failure as one ``error:`` line, exit 2.
     Skipped for Hydra's flags (``--multirun``, ``--help``, ``--cfg``...), which Hydra handles."""
@@ -146,6 +254,7 @@ def _precheck(config_name: str, argv: list[str]) -> None:
     try:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
             cfg = hydra_compose(config_name=config_name, overrides=argv, return_hydra_config=True)
+            reference = hydra_compose(config_name=config_name, overrides=_group_overrides(argv))
         for key in cfg:  # interpolations that resolve before the run (not the run folder's)
             if key != "hydra":
                 try:
@@ -155,9 +264,30 @@ def _precheck(config_name: str, argv: list[str]) -> None:
                 except InterpolationResolutionError as exc:
                     if "hydra" not in str(exc).lower():
                         raise
+        check_booleans(cfg, reference)
+        _check_run_folder(cfg)
     except (HydraException, OmegaConfBaseException) as exc:
-        print(f"error: {composition_message(exc)}", file=sys.stderr)
+        parse = type(exc).__name__ == "OverrideParseException"
+        message = _non_ascii_message(argv) if parse else None
+        print(f"error: {message or composition_message(exc)}", file=sys.stderr)
         sys.exit(EXIT_INPUT_ERROR)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(EXIT_INPUT_ERROR)
+    _PRECHECKED["done"] = True
+
+
+def _in_app_check(config_name: str, cfg) -> None:
+    """:func:`check_booleans` inside the Hydra job, when :func:`_precheck` was skipped (a
+    ``--multirun``, or a call with flags): one job's overrides."""
+    from hydra import compose as hydra_compose
+    from hydra.core.global_hydra import GlobalHydra
+
+    if _PRECHECKED["done"] or not GlobalHydra.instance().is_initialized():
+        return
+
+    reference = hydra_compose(config_name=config_name, overrides=_group_overrides(task_overrides()))
+    check_booleans(cfg, reference)
 
 
 def command(config_name: str) -> Callable[[Callable], Callable]:
@@ -166,7 +296,13 @@ def command(config_name: str) -> Callable[[Callable], Callable]:
 
     def decorate(func: Callable) -> Callable:
         app = hydra.main(version_base="1.3", config_path=str(CONF_DIR), config_name=config_name)
-        hydra_main = app(reports_errors(func))
+
+        @functools.wraps(func)
+        def checked(cfg, *args, **kwargs):
+            _in_app_check(config_name, cfg)
+            return func(cfg, *args, **kwargs)
+
+        hydra_main = app(reports_errors(checked))
 
         @functools.wraps(func)
         def run(*args, **kwargs):

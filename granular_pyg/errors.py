@@ -42,6 +42,37 @@ def positive_number(name: str, value) -> float:
     return float(value)
 
 
+def flag(name: str, value) -> bool:
+    """``value`` as a bool: only ``True`` or ``False`` (``"no"``, ``"flase"``, ``1`` and None
+    are refused: a non-empty string is true to Python, so ``overwrite=no`` would replace a file).
+
+    Raises:
+        InputError: naming ``name`` and the value.
+    """
+    if not isinstance(value, bool):
+        raise InputError(f"{name}: expected true or false, got {value!r}; write {name}=true or {name}=false")
+    return value
+
+
+def finite_number(name: str, value, minimum: float | None = None) -> float:
+    """``value`` as a finite float (an int or float; not a bool or a string), ``>= minimum``
+    when one is given.
+
+    Raises:
+        InputError: naming ``name`` and the value (``nan``, ``-1e-4`` below a minimum of 0).
+    """
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    if not ok or not math.isfinite(value) or (minimum is not None and value < minimum):
+        bound = f" >= {minimum:g}" if minimum is not None else ""
+        raise InputError(f"{name}: expected a finite number{bound}, got {value!r}")
+    return float(value)
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C, with what was kept: its message says where the work done so far went (or that
+    nothing was kept); :func:`granular_pyg.cli.reports_errors` prints it as one line."""
+
+
 class NonFiniteError(ArithmeticError):
     """A learned step predicted NaN or Inf for a particle that had not left.
 

@@ -1,4 +1,5 @@
-"""Using a trained model: load it from a checkpoint and roll it out over a Trajectory's Scene.
+"""Using a trained model: load it from a checkpoint (:mod:`granular_pyg.checkpoint`, which owns
+reading it) and roll it out over a Trajectory's Scene.
 
 A rollout starts from the first ``H + 1`` ground-truth states (every ``k``-th frame, ``k`` the
 time-step multiple the model was trained with), then feeds its own predictions back. The walls
@@ -17,21 +18,27 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from hydra.utils import instantiate
-from omegaconf import OmegaConf
 
-from granular_pyg.errors import InputError, NonFiniteError, whole_number
+from granular_pyg.checkpoint import (
+    load_simulator,
+    load_weights,
+    outside_training,
+    read_checkpoint,
+    whole_multiple,
+)
+from granular_pyg.errors import InputError, NonFiniteError, flag, whole_number
 from granular_pyg.io import Trajectory
-from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator, ParticleProps, WallGuard
 
 __all__ = [
     "available_steps",
+    "check_inside_scene",
     "initial_frames",
     "load_simulator",
     "load_weights",
     "matching_frames",
+    "outside_scene",
     "read_checkpoint",
     "rollout_trajectory",
     "time_step_multiple",
@@ -39,90 +46,83 @@ __all__ = [
 ]
 
 
-def read_checkpoint(
-    path: str | Path, name: str = "ckpt", map_location: str = "cpu"
-) -> tuple[Path, dict]:
-    """The file and contents of checkpoint ``path`` (a file or ``pretrained:<name>``).
-
-    Raises:
-        InputError: naming the option ``name``: no such file, or not a readable checkpoint.
-    """
-    path = resolve_checkpoint(path)
-    if not path.is_file():
-        raise InputError(
-            f"{name}: no checkpoint at {path}; pass a file from <run>/checkpoints/ or "
-            "pretrained:hopper / pretrained:drum"
-        )
-    try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=False)
-    except Exception as exc:  # torch raises several types for corrupt files
-        raise InputError(
-            f"{name}: {path} is not a readable checkpoint ({exc}); was it truncated?"
-        ) from exc
-    if not isinstance(ckpt, dict):
-        raise InputError(f"{name}: {path} is not a granular_pyg training checkpoint")
-    return path, ckpt
-
-
-def load_weights(sim: LearnedSimulator, ckpt: dict, source: str) -> None:
-    """Load the ``sim.*`` weights and buffers (normalisation, ``dt``) of training checkpoint
-    ``ckpt`` into ``sim``.
-
-    Raises:
-        InputError: naming ``source``: the weights do not fit ``sim``'s architecture.
-    """
-    prefix = "sim."
-    state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
-    missing, unexpected = sim.load_state_dict(state, strict=False)
-    if missing or unexpected:
-        raise InputError(
-            f"{source}: weights do not fit the model of its config (missing {missing[:5]}, "
-            f"unexpected {unexpected[:5]})"
-        )
-
-
-def load_simulator(path: str | Path, map_location: str = "cpu") -> tuple[LearnedSimulator, dict]:
-    """The trained simulator of a training checkpoint (``checkpoints/*.ckpt``), in eval mode.
-
-    Args:
-        path: a checkpoint written by ``python -m granular_pyg.train``, or
-            ``pretrained:<name>`` (see :mod:`granular_pyg.pretrained`).
-        map_location: device for the weights.
-
-    Returns:
-        ``(simulator, config)``: the model with its weights, normalisation statistics and ``dt``,
-        and the training run's resolved config (a dict) with the checkpoint's model card under
-        ``model_card`` (:mod:`granular_pyg.training.model_card`; empty for old checkpoints).
-    """
-    path, ckpt = read_checkpoint(path, "ckpt", map_location)
-    config = ckpt.get("config")
-    if not config or "model" not in config or "state_dict" not in ckpt:
-        raise InputError(
-            f"{path}: not a granular_pyg training checkpoint (no config or state_dict); "
-            "train one with `python -m granular_pyg.train`"
-        )
-    sim = instantiate(OmegaConf.create(config["model"]))
-    load_weights(sim, ckpt, str(path))
-    config = dict(config) | {"model_card": ckpt.get("model_card") or {}}
-    return sim.eval(), config
-
-
 def warn_outside_training(config: dict, truth: Trajectory, name: str) -> list[str]:
     """Print one ``warning:`` line (standard error) per property of ``truth`` outside the
     model's training data (its card), naming the trajectory ``name``; returns the messages."""
-    from granular_pyg.training.model_card import outside_training
-
     found = outside_training(config.get("model_card"), truth)
     for message in found:
         print(f"warning: {name}: {message}; the prediction may be poor", file=sys.stderr)
     return found
 
 
-def whole_multiple(dt: float, frame_dt: float) -> int | None:
-    """``dt / frame_dt`` (both s) when it is a whole number >= 1 (to 1e-6), else None."""
-    ratio = dt / frame_dt
-    k = round(ratio)
-    return k if k >= 1 and abs(ratio - k) <= 1e-6 * max(1.0, ratio) else None
+def outside_scene(truth: Trajectory, frame: int) -> np.ndarray:
+    """``[N]`` bool: particles of ``truth``'s frame ``frame`` (present ones only) whose centre
+    lies outside the Scene: outside its simulation box (the outflow floor excepted), or more
+    than a particle diameter outside the walls present then (their closed surface, or the
+    convex hull of walls that enclose a volume; below the walls' lowest point of a scene with an
+    outflow counts as inside: falling towards it).
+
+    A learned rollout of such particles has no wall near them: they fall freely, and nothing
+    they do says anything of the equipment.
+    """
+    from granular_pyg.scenes.containment import (
+        inside_closed_surface,
+        inside_convex_hull,
+        is_closed_surface,
+        walls_at,
+    )
+
+    scene = truth.scene
+    pos = np.asarray(truth.positions[frame], np.float64)
+    present = np.isfinite(pos).all(1)
+    out = np.zeros(len(pos), bool)
+    if scene is None or not present.any():
+        return out
+    p = pos[present]
+    lo, hi = np.asarray(scene.domain_lo), np.asarray(scene.domain_hi)
+    below = p < lo
+    if scene.outflow_z is not None:
+        below[:, 2] = False
+    outside = (below | (p > hi)).any(1)
+    triangles, _ = walls_at(scene, float(truth.times[frame]))
+    if len(triangles):
+        slack = 2.0 * float(np.max(truth.radii)) if truth.num_particles else 0.0
+        if is_closed_surface(triangles):
+            inner = inside_closed_surface(p, triangles)
+        else:
+            inner = inside_convex_hull(p, triangles.reshape(-1, 3), tol=-slack)
+            if not inside_convex_hull(triangles.reshape(-1, 3).mean(0, keepdims=True),
+                                      triangles.reshape(-1, 3)).any():
+                inner[:] = True  # walls that enclose no volume (a plate): nothing to test
+        if scene.outflow_z is not None:
+            inner |= p[:, 2] < triangles[..., 2].min()
+        outside |= ~inner
+    out[present] = outside
+    return out
+
+
+def check_inside_scene(truth: Trajectory, frame: int, name: str = "trajectory") -> int:
+    """Refuse a rollout whose every particle starts outside the Scene (:func:`outside_scene`);
+    print one ``warning:`` line when some do. Returns how many are outside.
+
+    Raises:
+        InputError: naming ``name``: every present particle is outside the walls or the box.
+    """
+    outside = outside_scene(truth, frame)
+    count, present = int(outside.sum()), int(np.isfinite(truth.positions[frame]).all(1).sum())
+    if count and count == present:
+        raise InputError(
+            f"{name}: all {count} particles start outside the walls or the simulation box of "
+            "its Scene (a rollout would see no wall); check that the walls and the particles "
+            "share one frame of reference and units (metres)"
+        )
+    if count:
+        print(
+            f"warning: {name}: {count} of {present} particles start outside the walls or the "
+            "simulation box; they will not meet a wall",
+            file=sys.stderr,
+        )
+    return count
 
 
 def time_step_multiple(sim: LearnedSimulator, frame_dt: float) -> int:
@@ -151,6 +151,8 @@ def initial_frames(
     """
     if truth.scene is None:
         raise InputError("truth: a rollout needs the trajectory's Scene (walls); it has none")
+    if truth.num_particles == 0:
+        raise InputError("truth: the trajectory has no particles; there is nothing to roll out")
     truth.check_even_spacing()
     k = time_step_multiple(sim, truth.frame_dt)
     frames = np.arange(start_frame, start_frame + (sim.history + 1) * k, k)
@@ -180,6 +182,7 @@ def rollout_trajectory(
     wall_guard: bool = False,
     stop_when_empty: bool = False,
     precision: str = "32",
+    name: str = "truth",
 ) -> Trajectory:
     """Roll ``sim`` out over ``truth``'s Scene from its ground-truth initial states.
 
@@ -199,6 +202,9 @@ def rollout_trajectory(
             (metadata ``stopped_empty``: the steps taken).
         precision: the network's precision, ``"32"`` or ``"bf16"`` (bfloat16 matrix products,
             about 2x faster on CPUs with AVX-512 BF16; see ``docs/results.md`` for its accuracy).
+        name: how the user named ``truth`` (a file), for messages: a rollout whose particles
+            all start outside the Scene is refused, one where some do is warned about
+            (:func:`check_inside_scene`).
 
     Returns:
         A Trajectory with ``H + 1 + steps`` frames every ``k`` saved frames from
@@ -211,10 +217,14 @@ def rollout_trajectory(
             negative, or more than the memory can hold).
         NonFiniteError: the model predicted NaN/Inf; its ``partial`` attribute holds the
             Trajectory up to the failing step (metadata ``failed_step``), nothing is lost.
+        KeyboardInterrupt: Ctrl-C; its ``partial`` attribute holds the Trajectory of the
+            steps finished before it (metadata ``interrupted_after_step``), or None.
     """
+    wall_guard = flag("wall_guard", wall_guard)
     k, initial = initial_frames(sim, truth, start_frame)
     available = available_steps(sim, truth, start_frame)
     steps = available if steps is None else whole_number("steps", steps)
+    check_inside_scene(truth, int(initial[-1]), name)
     _check_fits_in_memory(steps, truth.num_particles, dtype)
     seq = torch.from_numpy(truth.positions[initial]).to(sim.dt.device, dtype)
     seq = seq.permute(1, 0, 2).contiguous()
@@ -236,7 +246,12 @@ def rollout_trajectory(
             return True
         return False
 
-    check = stop_if_empty if stop_when_empty else None
+    done_steps: list[torch.Tensor] = []  # the predictions so far (the same tensors), for Ctrl-C
+
+    def on_step(s: int, t: float, seq: torch.Tensor, nxt: torch.Tensor) -> bool:
+        done_steps.append(nxt)
+        return stop_if_empty(s, t, seq, nxt) if stop_when_empty else False
+
     before = sim.network_dtype
     sim.set_network_precision(str(precision))
     try:
@@ -249,9 +264,20 @@ def rollout_trajectory(
             progress,
             skin,
             guard,
-            check,
+            on_step,
             props=ParticleProps.of(truth),
         )
+    except KeyboardInterrupt as exc:
+        # every prediction handed to on_step is complete (the outflow, applied right after,
+        # is applied again here in case Ctrl-C came in between)
+        exc.partial = None
+        if done_steps:
+            done = torch.stack(done_steps)
+            if outflow is not None:
+                done[done[..., 2] < outflow] = float("nan")
+            meta = settings | {"interrupted_after_step": len(done_steps)}
+            exc.partial = _prediction(truth, initial, done, dt, meta)
+        raise
     except NonFiniteError as exc:
         done = exc.positions_so_far
         exc.partial = _prediction(truth, initial, done, dt, settings | {"failed_step": exc.step})

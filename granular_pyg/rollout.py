@@ -16,8 +16,9 @@ from omegaconf import DictConfig
 
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
-from granular_pyg.errors import InputError, NonFiniteError
-from granular_pyg.inference import load_simulator, rollout_trajectory, warn_outside_training
+from granular_pyg.checkpoint import load_simulator, resolve_checkpoint
+from granular_pyg.errors import InputError, Interrupted, NonFiniteError, flag, whole_number
+from granular_pyg.inference import rollout_trajectory, warn_outside_training
 from granular_pyg.io import (
     Trajectory,
     check_output,
@@ -25,7 +26,6 @@ from granular_pyg.io import (
     read_trajectory,
     write_trajectory,
 )
-from granular_pyg.pretrained import resolve_checkpoint
 
 __all__ = ["default_trajectory", "rollout"]
 
@@ -34,7 +34,12 @@ DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 def default_trajectory(config: dict, split: str = "test") -> Path:
     """The first trajectory of ``split`` of the data a training run used."""
-    data = config.get("data", {})
+    data = config.get("data") or {}
+    if not data.get("root") and not data.get("sample"):
+        raise InputError(
+            "trajectory: the checkpoint records no training data to take a default trajectory "
+            "from; pass trajectory=<file.h5>"
+        )
     files = load_split(data.get("root"), data.get("sample"), split)
     if not files:
         raise InputError(f"the training data has no {split!r} trajectory; pass trajectory=...")
@@ -45,7 +50,14 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
     """Run the rollout ``cfg`` describes; returns the prediction and where it was written."""
     if cfg.dtype not in DTYPES:
         raise InputError(f"dtype: expected one of {sorted(DTYPES)}, got {cfg.dtype!r}")
-    torch.set_num_threads(cfg.threads)
+    for key in ("overwrite", "wall_guard", "progress", "paraview"):
+        flag(key, cfg[key])
+    if cfg.trajectory and Path(cfg.trajectory).is_dir():
+        raise InputError(
+            f"trajectory: {cfg.trajectory} is a folder; pass one trajectory file, e.g. "
+            f"trajectory={Path(cfg.trajectory) / 'traj_0000.h5'}"
+        )
+    torch.set_num_threads(whole_number("threads", cfg.threads, minimum=1))
     out = check_output(cfg.out, [cfg.trajectory, resolve_checkpoint(cfg.ckpt)], cfg.overwrite)
     sim, config = load_simulator(cfg.ckpt)
     steps = cfg.steps
@@ -71,7 +83,10 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
             wall_guard=cfg.wall_guard,
             stop_when_empty=True,
             precision=str(cfg.get("precision", "32")),
+            name=f"trajectory {source}",
         )
+    except KeyboardInterrupt as exc:
+        raise _interrupted(exc, out, cfg, source) from None
     except NonFiniteError as exc:
         partial = out.with_suffix(".partial.h5")
         exc.partial.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
@@ -95,6 +110,22 @@ def rollout(cfg: DictConfig) -> tuple[Trajectory, Path]:
         pvd = export_paraview(out.parent / "paraview", {"prediction": pred}, progress=cfg.progress)
         print(f"ParaView: {pvd}")
     return pred, out
+
+
+def _interrupted(exc: KeyboardInterrupt, out: Path, cfg: DictConfig, source: Path) -> Interrupted:
+    """Ctrl-C during the rollout: the steps finished so far written to ``<out>.partial.h5``
+    (metadata ``interrupted_after_step``), and the one line that says so."""
+    partial = getattr(exc, "partial", None)
+    if partial is None:
+        return Interrupted(f"no learned step had finished; nothing was written (out={out})")
+    partial.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(source)}
+    target = out.with_suffix(".partial.h5")
+    try:
+        write_trajectory(partial, target)
+    except OSError as err:
+        return Interrupted(f"the steps so far could not be kept ({err.strerror or err})")
+    steps = partial.metadata["interrupted_after_step"]
+    return Interrupted(f"the {steps} learned steps finished before it are kept in {target}")
 
 
 def _write_or_keep(traj: Trajectory, out: Path) -> Path:

@@ -16,57 +16,39 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 
-from granular_pyg.cli import command
-from granular_pyg.config import flatten
-from granular_pyg.errors import InputError
-from granular_pyg.inference import read_checkpoint
+from granular_pyg.checkpoint import (
+    DERIVED_KEYS,
+    RESUME_KEYS,
+    build_model,
+    card_of_trajectories,
+    check_resume,
+    saved_config,
+    to_plain,
+)
+from granular_pyg.checkpoint.fine_tune import (
+    load_initial_weights,
+    merge_cards,
+    with_initial_model,
+)
+from granular_pyg.cli import command, task_overrides
+from granular_pyg.errors import finite_number, whole_number
 from granular_pyg.progress import show_progress
 from granular_pyg.training import AtomicCheckpointIO, RolloutValidation, SimulatorModule
 from granular_pyg.training.epoch_log import EpochLog
-from granular_pyg.training.fine_tune import load_initial_weights, merge_cards, with_initial_model
-from granular_pyg.training.model_card import card_of_trajectories
-from granular_pyg.training.saved_config import migrate_config
 
-__all__ = ["train"]
+__all__ = ["DERIVED_KEYS", "RESUME_KEYS", "train"]
 
-#: Config sections that must match between a checkpoint and the run that resumes it.
-RESUME_KEYS = ("model", "data")
-#: Keys set from the data at the start of training (the learned step is the data's frame
-#: spacing times data.frames_per_step, both compared), so a checkpoint stores the real value.
-DERIVED_KEYS = {"model.dt"}
-
-
-def _check_resume(ckpt_path: str, cfg: DictConfig) -> None:
-    path, ckpt = read_checkpoint(ckpt_path, "ckpt_path")
-    saved = ckpt.get("config")
-    if saved is None:
-        return
-    saved = migrate_config(saved)
-    now = OmegaConf.to_container(cfg, resolve=True)
-    differ = []
-    for section in RESUME_KEYS:
-        old, new = flatten(saved.get(section, {})), flatten(now.get(section, {}))
-        differ += [
-            f"{section}.{k}: {old.get(k)!r} -> {new.get(k)!r}"
-            for k in sorted(set(old) | set(new))
-            if old.get(k) != new.get(k) and f"{section}.{k}" not in DERIVED_KEYS
-        ]
-    if differ:
-        raise InputError(
-            f"{path} was trained with a different config; these keys differ:\n  "
-            + "\n  ".join(differ)
-            + "\nresume with the same model/data overrides"
-        )
+#: The resume check lives with the checkpoint (kept here under its old names for older imports).
+_check_resume = check_resume
 
 
 class _SaveConfig(L.Callback):
-    """Stores the run's config (with the learned step the data set) and its model card in
-    every checkpoint."""
+    """Stores the run's config (plain dicts, with the learned step the data set) and its model
+    card in every checkpoint (:func:`granular_pyg.checkpoint.saved_config`)."""
 
     def __init__(self, cfg: DictConfig, card: dict) -> None:
-        self.config = OmegaConf.to_container(cfg, resolve=True)
-        self.config["model"]["dt"] = card.get("dt_s", self.config["model"].get("dt"))
-        self.card = card
+        self.config = saved_config(cfg, card)
+        self.card = to_plain(card)
 
     def on_save_checkpoint(self, trainer, pl_module, checkpoint: dict) -> None:
         checkpoint["config"] = self.config
@@ -95,13 +77,17 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     out = Path(out_dir or HydraConfig.get().runtime.output_dir)
     initial = None
     if cfg.get("init"):
-        cfg, initial = with_initial_model(cfg)
+        cfg, initial = with_initial_model(cfg, task_overrides())
         print(f"fine-tuning {cfg.init}: its model, weights and normalisation; a new optimiser")
     if cfg.ckpt_path:
-        _check_resume(cfg.ckpt_path, cfg)
+        check_resume(cfg.ckpt_path, cfg)
+    finite_number("data.noise_std", cfg.data.get("noise_std", 0.0), minimum=0.0)
     L.seed_everything(cfg.seed, workers=True)
-    torch.set_num_threads(cfg.threads)
-    sim = instantiate(cfg.model)
+    torch.set_num_threads(whole_number("threads", cfg.threads, minimum=1))
+    if initial is not None:  # the model section is the checkpoint's: its own classes only
+        sim = build_model(OmegaConf.to_container(cfg.model, resolve=True), f"init: {cfg.init}")
+    else:
+        sim = instantiate(cfg.model)
     if cfg.get("compile"):
         sim.compile_for_training()
     objective = instantiate(cfg.objective)

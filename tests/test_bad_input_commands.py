@@ -39,6 +39,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory, write_trajectory
 from granular_pyg.pretrained import resolve_checkpoint
 from granular_pyg.samples import sample_files
+from tests import hostile
 from tests.dem.dump_text import falling, plate, write_dump, write_stl
 from tests.test_generate import TINY
 
@@ -134,6 +135,44 @@ def _dataset(tmp: Path) -> list[Path]:
     return [tmp / "dataset" / "manifest.json", tmp / "dataset" / "traj_0000.h5"]
 
 
+def _evil_pickle(tmp: Path) -> list[Path]:
+    return [hostile.pickle_payload(tmp / "evil.ckpt", tmp / "pwned")]
+
+
+def _evil_target(how: str, nested: bool = False) -> Callable[[Path], list[Path]]:
+    def make(tmp: Path) -> list[Path]:
+        path = hostile.config_target(tmp / "evil_cfg.ckpt", tmp / "pwned", how, nested)
+        inner = path.with_name(path.stem + "_inner.ckpt")
+        return [path, *([inner] if inner.exists() else [])]
+
+    return make
+
+
+def _edited(name: str, edit: Callable[[dict], object]) -> Callable[[Path], list[Path]]:
+    """The shipped hopper's contents changed by ``edit`` (what it returns is saved when not
+    None, else the edited dict)."""
+
+    def make(tmp: Path) -> list[Path]:
+        ckpt = hostile.shipped()
+        saved = edit(ckpt)
+        torch.save(ckpt if saved is None else saved, tmp / name)
+        return [tmp / name]
+
+    return make
+
+
+def _shipped_hopper(tmp: Path) -> list[Path]:
+    return [resolve_checkpoint("pretrained:hopper")]
+
+
+def _history_3(ckpt: dict) -> None:
+    ckpt["config"]["model"]["history"] = 3  # its weights were trained with 5
+
+
+def _no_data(ckpt: dict) -> None:
+    del ckpt["config"]["data"]
+
+
 #: name -> maker(folder) returning the files it made that must not change.
 MAKERS: dict[str, Callable[[Path], list[Path]]] = {
     "X.h5": _sample,
@@ -150,6 +189,16 @@ MAKERS: dict[str, Callable[[Path], list[Path]]] = {
     "dataset/": _dataset,
     # the same dataset, where only its trajectory must stay (a resumed run rewrites its manifest)
     "dataset/traj_0000.h5": lambda tmp: _dataset(tmp)[1:],
+    # hostile checkpoints: each makes tmp/pwned if anything it names runs
+    "evil.ckpt": _evil_pickle,
+    "evil_cfg.ckpt:open": _evil_target("open"),
+    "evil_cfg.ckpt:torch.load": _evil_target("torch.load", nested=True),
+    # checkpoints that are no training checkpoint, or whose parts disagree
+    "weights.ckpt": _edited("weights.ckpt", lambda c: c["state_dict"]),
+    "tensor.ckpt": _edited("tensor.ckpt", lambda c: torch.zeros(3)),
+    "history3.ckpt": _edited("history3.ckpt", _history_3),
+    "nodata.ckpt": _edited("nodata.ckpt", _no_data),
+    "shipped:hopper": _shipped_hopper,
 }
 
 
@@ -225,8 +274,10 @@ class Case:
     xfail: str | None = None
 
 
-def _rollout(id, args, **kw) -> Case:
-    return Case(id, "granular_pyg.rollout", [*ROLLOUT, *args], **({"inputs": ("X.h5",)} | kw))
+def _rollout(id, args, args_replace: bool = False, **kw) -> Case:
+    """A rollout of ``X.h5``; ``args_replace``: ``args`` name their own ``ckpt=``."""
+    base = [a for a in ROLLOUT if not (args_replace and a.startswith("ckpt="))]
+    return Case(id, "granular_pyg.rollout", [*base, *args], **({"inputs": ("X.h5",)} | kw))
 
 
 CASES = [
@@ -337,6 +388,101 @@ CASES = [
          env={"GRANULAR_PYG_LIGGGHTS": "/nonexistent/liggghts"},
          words=("/nonexistent/liggghts", "liggghts=<path>", "GRANULAR_PYG_LIGGGHTS"),
          absent=("data/traj_0000.h5",)),
+    # 10. hostile checkpoints (issue 36): refused unread or unbuilt, no marker file, by every
+    #     command that reads one
+    _rollout("rollout-pickle-payload", ["ckpt=evil.ckpt", "out=p.h5"], args_replace=True,
+             inputs=("X.h5", "evil.ckpt"), words=("ckpt:", "evil.ckpt", "exec",
+             "refused unread"), absent=("pwned", "p.h5")),
+    _rollout("rollout-config-target-open", ["ckpt=evil_cfg.ckpt", "out=p.h5"], args_replace=True,
+             inputs=("X.h5", "evil_cfg.ckpt:open"), words=("model._target_='builtins.open'",
+             "not one of the package's model classes"), absent=("pwned", "p.h5")),
+    Case("evaluate-pickle-payload", "granular_pyg.evaluate",
+         ["ckpt=evil.ckpt", "paraview=0", "progress=false", "trajectories=[X.h5]", "out=ev"],
+         inputs=("X.h5", "evil.ckpt"), words=("evil.ckpt", "refused unread"),
+         absent=("pwned", "ev/report.md")),
+    Case("evaluate-config-target-torch-load", "granular_pyg.evaluate",
+         ["ckpt=evil_cfg.ckpt", "paraview=0", "progress=false", "trajectories=[X.h5]", "out=ev"],
+         inputs=("X.h5", "evil_cfg.ckpt:torch.load"),
+         words=("model.processor._target_='torch.load'", "not one of the package's model"),
+         absent=("pwned", "ev/report.md")),
+    Case("train-resume-pickle-payload", "granular_pyg.train", ["ckpt_path=evil.ckpt"],
+         inputs=("evil.ckpt",), words=("ckpt_path:", "evil.ckpt", "refused unread"),
+         absent=("pwned",)),
+    Case("train-finetune-pickle-payload", "granular_pyg.train",
+         ["+experiment=finetune", "init=evil.ckpt", "data.root=null", "data.sample=hopper"],
+         inputs=("evil.ckpt",), words=("init:", "evil.ckpt", "refused unread"),
+         absent=("pwned",)),
+    Case("train-finetune-config-target-torch-load", "granular_pyg.train",
+         ["+experiment=finetune", "init=evil_cfg.ckpt", "data.root=null", "data.sample=hopper"],
+         inputs=("evil_cfg.ckpt:torch.load",), words=("init:", "model.processor._target_"),
+         absent=("pwned",)),
+    Case("export-pickle-payload", "granular_pyg.pretrained.export",
+         ["evil.ckpt", "hopper", "--out", "o.ckpt"], inputs=("evil.ckpt", "shipped:hopper"),
+         words=("evil.ckpt", "refused unread"), absent=("pwned", "o.ckpt")),
+    Case("stress-pickle-payload", "granular_pyg.stress",
+         ["cases.hopper_discharging.ckpt=evil.ckpt", "~cases.hopper_resting", "~cases.drum",
+          "~cases.drum_precision", "quick=true", "quick_steps=2", "progress=false",
+          "hydra.run.dir=st"],
+         inputs=("evil.ckpt",), words=("evil.ckpt", "refused unread"), absent=("pwned",)),
+    Case("bench-rollout-speed-pickle-payload", "granular_pyg.bench",
+         ["suite=rollout_speed", "suite.run.ckpts=[evil.ckpt]", "hydra.run.dir=b"],
+         inputs=("evil.ckpt",), words=("evil.ckpt", "refused unread"), absent=("pwned",)),
+    Case("one-step-bias-pickle-payload", "granular_pyg.experiments.one_step_bias",
+         ["ckpt=evil.ckpt", "files=[X.h5]", "out=ob"], inputs=("X.h5", "evil.ckpt"),
+         words=("evil.ckpt", "refused unread"), absent=("pwned",)),
+    # 11. strict booleans; nothing replaced without being asked
+    _rollout("rollout-overwrite-no", ["out=old.h5", "overwrite=no", "steps=1"],
+             inputs=("X.h5", "old.h5"), words=("overwrite:", "'no'", "true or false")),
+    _rollout("rollout-wall-guard-flase", ["wall_guard=flase", "out=p.h5", "steps=1"],
+             words=("wall_guard:", "'flase'", "true or false"), absent=("p.h5",)),
+    Case("train-compile-yes", "granular_pyg.train", ["compile=yes"],
+         words=("compile:", "'yes'", "true or false")),
+    Case("export-into-the-package-unasked", "granular_pyg.pretrained.export",
+         ["pretrained:hopper", "hopper"], inputs=("shipped:hopper",),
+         words=("--out", "--overwrite", "pretrained:hopper")),
+    Case("export-out-exists", "granular_pyg.pretrained.export",
+         ["pretrained:hopper", "hopper", "--out", "old.h5"], inputs=("shipped:hopper", "old.h5"),
+         words=("--out", "old.h5", "--overwrite")),
+    # 12. checkpoints that are not what they say
+    _rollout("rollout-ckpt-state-dict", ["ckpt=weights.ckpt", "out=p.h5"], args_replace=True,
+             inputs=("X.h5", "weights.ckpt"), words=("ckpt:", "bare state_dict"),
+             absent=("p.h5",)),
+    _rollout("rollout-ckpt-config-and-weights-disagree", ["ckpt=history3.ckpt", "out=p.h5"],
+             args_replace=True, inputs=("X.h5", "history3.ckpt"),
+             words=("history3.ckpt", "weights do not fit", "of another shape"), absent=("p.h5",)),
+    Case("rollout-ckpt-without-data-section", "granular_pyg.rollout",
+         ["ckpt=nodata.ckpt", "out=p.h5", "progress=false"], inputs=("nodata.ckpt",),
+         words=("trajectory:", "no training data", "trajectory=<file.h5>"), absent=("p.h5",)),
+    Case("train-ckpt-path-state-dict", "granular_pyg.train", ["ckpt_path=weights.ckpt"],
+         inputs=("weights.ckpt",), words=("ckpt_path:", "bare state_dict", "init=")),
+    Case("train-ckpt-path-pretrained", "granular_pyg.train", ["ckpt_path=pretrained:hopper"],
+         words=("ckpt_path:", "slim", "init=")),
+    Case("export-bare-tensor", "granular_pyg.pretrained.export",
+         ["tensor.ckpt", "hopper", "--out", "o.ckpt"], inputs=("tensor.ckpt",),
+         words=("tensor.ckpt", "holds a Tensor"), absent=("o.ckpt",)),
+    # 13. meaningless or raw: one line each
+    _rollout("rollout-threads-0", ["threads=0", "out=p.h5"], words=("threads:", "got 0"),
+             absent=("p.h5",)),
+    _rollout("rollout-threads--1", ["threads=-1", "out=p.h5"], words=("threads:", "got -1"),
+             absent=("p.h5",)),
+    Case("rollout-trajectory-is-a-folder", "granular_pyg.rollout",
+         ["ckpt=pretrained:hopper", "trajectory=dumps", "out=p.h5"], inputs=("dumps/",),
+         words=("trajectory:", "dumps", "is a folder"), absent=("p.h5",)),
+    Case("rollout-non-ascii-path", "granular_pyg.rollout",
+         ["ckpt=pretrained:hopper", "trajectory=données/X.h5"],
+         words=("trajectory:", "quote")),
+    Case("train-max-epochs--5", "granular_pyg.train", ["trainer.max_epochs=-5"],
+         words=("trainer", "max_epochs")),
+    Case("train-noise-std-negative", "granular_pyg.train", ["data.noise_std=-1e-4"],
+         words=("data.noise_std:", ">= 0", "-0.0001")),
+    Case("train-noise-std-nan", "granular_pyg.train", ["data.noise_std=nan"],
+         words=("data.noise_std:", "nan")),
+    Case("train-finetune-model-latent-32", "granular_pyg.train",
+         ["+experiment=finetune", "init=pretrained:hopper", "data.root=null",
+          "data.sample=hopper", "model.latent=32"],
+         words=("model.latent=32", "fine-tuning keeps the architecture", "latent")),
+    Case("train-run-folder-unwritable", "granular_pyg.train", ["hydra.run.dir=locked/run"],
+         inputs=("locked/",), words=("hydra.run.dir", "locked", "not writable")),
 ]  # fmt: skip
 
 

@@ -205,3 +205,146 @@ def test_noise_and_one_step_on_random_scenes_stay_finite(scene, normals, noise_s
     assert out.shape == (seq.shape[0], 3)
     assert torch.isfinite(out[present]).all()
     assert torch.isnan(out[~present]).all()
+
+
+# --- issue 36: nothing lost, nothing silently wrong (in process) ------------------------------
+
+
+def _rollout_cfg(tmp_path, **extra):
+    from omegaconf import OmegaConf
+
+    base = {
+        "ckpt": "pretrained:hopper", "trajectory": str(sample_files("hopper", "test")[0]),
+        "steps": 6, "start_frame": 0, "dtype": "float32", "skin": None, "wall_guard": False,
+        "precision": "32", "threads": 1, "out": str(tmp_path / "p.h5"), "overwrite": False,
+        "progress": False, "paraview": False,
+    }  # fmt: skip
+    return OmegaConf.create(base | extra)
+
+
+def test_ctrl_c_during_a_rollout_keeps_the_finished_steps_in_a_partial_file(tmp_path, monkeypatch):
+    from granular_pyg.errors import Interrupted
+    from granular_pyg.rollout import rollout
+
+    real, calls = LearnedSimulator.step, {"n": 0}
+
+    def interrupted_on_the_fourth_step(self, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise KeyboardInterrupt
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(LearnedSimulator, "step", interrupted_on_the_fourth_step)
+    with pytest.raises(Interrupted, match=r"the 3 learned steps finished before it are kept in "):
+        rollout(_rollout_cfg(tmp_path))
+    partial = read_trajectory(tmp_path / "p.partial.h5")
+    assert partial.metadata["interrupted_after_step"] == 3 and partial.num_frames == 6 + 3
+    assert not (tmp_path / "p.h5").exists()
+    calls["n"] = -10  # interrupted before any step finished: says nothing was kept
+    monkeypatch.setattr(
+        LearnedSimulator, "step", lambda self, *a, **k: (_ for _ in ()).throw(KeyboardInterrupt)
+    )
+    with pytest.raises(Interrupted, match="no learned step had finished; nothing was written"):
+        rollout(_rollout_cfg(tmp_path, out=str(tmp_path / "q.h5")))
+
+
+def test_ctrl_c_is_one_error_line_and_exit_status_130(capsys):
+    from granular_pyg.cli import EXIT_INTERRUPTED, reports_errors
+    from granular_pyg.errors import Interrupted
+
+    @reports_errors
+    def main():
+        raise Interrupted("the 3 learned steps finished before it are kept in p.partial.h5")
+
+    with pytest.raises(SystemExit) as info:
+        main()
+    assert info.value.code == EXIT_INTERRUPTED == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["error: interrupted (Ctrl-C); the 3 learned steps finished before it are "
+                   "kept in p.partial.h5"]  # fmt: skip
+
+
+def test_strict_booleans_refuse_no_and_flase(tmp_path):
+    from granular_pyg.errors import flag
+    from granular_pyg.io import check_output
+
+    (tmp_path / "old.h5").write_bytes(b"x")
+    with pytest.raises(InputError, match=r"overwrite: expected true or false, got 'no'"):
+        check_output(tmp_path / "old.h5", [], "no")
+    with pytest.raises(InputError, match=r"wall_guard: expected true or false, got 'flase'"):
+        flag("wall_guard", "flase")
+    assert (tmp_path / "old.h5").read_bytes() == b"x"
+
+
+def test_cli_boolean_check_names_every_boolean_option_of_a_config():
+    from hydra import compose, initialize_config_dir
+
+    from granular_pyg.cli import check_booleans
+    from granular_pyg.config import CONF_DIR
+
+    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+        reference = compose("rollout", ["ckpt=x"])
+        for key in ("overwrite", "wall_guard", "progress", "paraview"):
+            cfg = compose("rollout", ["ckpt=x", f"{key}=no"])
+            with pytest.raises(InputError, match=rf"^{key}: expected true or false, got 'no'"):
+                check_booleans(cfg, reference)
+        check_booleans(compose("rollout", ["ckpt=x", "overwrite=true"]), reference)
+        with pytest.raises(InputError, match=r"threads: expected a whole number >= 1, got 0"):
+            check_booleans(compose("rollout", ["ckpt=x", "threads=0"]), reference)
+
+
+def test_particles_all_outside_the_walls_are_refused_and_some_are_warned_about(hopper, capsys):
+    from granular_pyg.inference import check_inside_scene, outside_scene
+
+    assert not outside_scene(hopper, 0).any()  # the real hopper: every particle inside
+    away = dataclasses.replace(hopper, positions=hopper.positions + np.array([0.5, 0.0, 0.0]))
+    with pytest.raises(InputError, match=r"X\.h5: all \d+ particles start outside the walls"):
+        check_inside_scene(away, 0, "X.h5")
+    some = hopper.positions.copy()
+    some[:, :3] += np.array([0.5, 0.0, 0.0])
+    assert check_inside_scene(dataclasses.replace(hopper, positions=some), 0, "X.h5") == 3
+    assert "warning: X.h5: 3 of" in capsys.readouterr().err
+
+
+def test_a_trajectory_without_particles_is_refused(hopper):
+    empty = dataclasses.replace(
+        hopper,
+        positions=hopper.positions[:, :0],
+        velocities=hopper.velocities[:, :0],
+        radii=hopper.radii[:0],
+        ids=hopper.ids[:0],
+    )
+    sim = _model()
+    sim.dt.fill_(float(hopper.frame_dt))
+    with pytest.raises(InputError, match="the trajectory has no particles"):
+        rollout_trajectory(sim, empty, steps=1, progress=False)
+
+
+def test_fine_tuning_refuses_overrides_it_cannot_honour():
+    from omegaconf import OmegaConf
+
+    from granular_pyg.checkpoint.fine_tune import with_initial_model
+
+    cfg = OmegaConf.create(
+        {
+            "init": "pretrained:hopper",
+            "data": {"root": None, "sample": "hopper"},
+            "model": {"graph_backend": "scipy"},
+        }
+    )
+    with pytest.raises(InputError, match=r"model\.latent=32: fine-tuning keeps the architecture"):
+        with_initial_model(cfg, ["model.latent=32"])
+    with pytest.raises(InputError, match=r"model=v1: fine-tuning keeps the model"):
+        with_initial_model(cfg, ["model=v1"])
+    with pytest.raises(InputError, match=r"data\.noise_std=0\.1: fine-tuning cannot honour it"):
+        with_initial_model(cfg, ["data.noise_std=0.1"])
+    out, _ = with_initial_model(cfg, ["model.latent=64", "model.graph_backend=scipy"])
+    assert out.model.latent == 64 and out.model.graph_backend == "scipy"
+
+
+def test_negative_or_nan_noise_is_refused():
+    from granular_pyg.errors import finite_number
+
+    for value, shown in ((-1e-4, "-0.0001"), (float("nan"), "nan")):
+        with pytest.raises(InputError, match=rf"data\.noise_std: expected a finite number.*{shown}"):
+            finite_number("data.noise_std", value, minimum=0.0)

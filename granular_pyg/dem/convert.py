@@ -44,6 +44,7 @@ import argparse
 import dataclasses
 import math
 import os
+import re
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -61,7 +62,7 @@ from granular_pyg.dem.import_checks import (
 )
 from granular_pyg.dem.liggghts_input import RunScript, read_run_script
 from granular_pyg.dem.mesh_dump import read_mesh_dumps
-from granular_pyg.dem.outflow import apply_outflow, check_no_reappearance
+from granular_pyg.dem.outflow import apply_outflow, check_no_reappearance, count_vanished
 from granular_pyg.dem.stitch import read_dump_runs, read_dumps
 from granular_pyg.dem.wall_import import ImportedWall, import_walls, load_stl_wall
 from granular_pyg.dem.walls_config import UNITS, WallsConfig, read_walls_config
@@ -89,6 +90,9 @@ __all__ = [
 ]
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
+#: What the command line reads as a negative number, e-notation included (argparse's own
+#: pattern takes ``--dem-dt -2e-5`` for an option and refuses it).
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 #: Fewest frames of a part ``--split-gaps`` writes; shorter runs are skipped with a warning.
 MIN_PART_FRAMES = 3
@@ -146,7 +150,8 @@ def trajectory_from_dumps(
         floor at ``outflow_z``), ``frame_dt`` the recorded spacing, ``settle_time = 0`` and
         ``duration`` the last recorded time. Metadata: ``{"source": "imported", "dumps",
         "stl_files", "first_timestep", "walls": [per-wall sources], "sources": {value: where
-        it came from}, "left_through_outflow", "never_present"}``.
+        it came from}, "left_through_outflow", "never_present", "vanished"}`` (``vanished``:
+        atoms that leave the dumps other than below ``outflow_z``, warned about).
 
     Raises:
         FileNotFoundError: a file does not exist.
@@ -430,6 +435,7 @@ def _trajectories(
             "sources": sources,
             "left_through_outflow": part.left,
             "never_present": part.never,
+            "vanished": part.vanished,
         }
         for key, value in (("walls_yaml", config), ("script", script), ("mesh_dumps", mesh_dumps)):
             if value:
@@ -461,6 +467,7 @@ class _Particles:
     radius: float
     left: int
     never: int
+    vanished: int = 0
 
 
 def _particles(
@@ -484,6 +491,7 @@ def _particles(
             )
         left = apply_outflow(arrays["positions"], arrays["velocities"], outflow)
     check_no_reappearance(arrays["positions"], arrays["ids"], timesteps)
+    vanished = count_vanished(arrays["positions"], left, outflow, arrays["ids"], timesteps)
     keep = np.isfinite(arrays["positions"][..., 0]).any(axis=0)
     never = int((~keep).sum())
     if never:
@@ -493,7 +501,9 @@ def _particles(
             arrays[key] = arrays[key][keep]
     duration = float(arrays["times"][-1])
     radius = float(np.max(arrays["radii"])) if len(arrays["radii"]) else 0.0
-    return _Particles(arrays, first_timestep, timesteps, box, duration, radius, left, never)
+    return _Particles(
+        arrays, first_timestep, timesteps, box, duration, radius, left, never, vanished
+    )
 
 
 def _rebased(imported: ImportedWall, offset: float, dt: float) -> Wall | None:
@@ -643,6 +653,7 @@ def main(argv: Sequence[str] | None = None) -> Path | list[Path]:
         help="instead of refusing a missing frame, write each run of evenly spaced frames as its "
         "own trajectory: --out run.h5 -> run_part0.h5, run_part1.h5, ...",
     )
+    parser._negative_number_matcher = NEGATIVE_NUMBER  # -2e-5 is a value, not an option
     args = parser.parse_args(argv)
 
     config = read_walls_config(args.walls) if args.walls is not None else None

@@ -15,7 +15,7 @@ import numpy as np
 
 from granular_pyg.errors import InputError
 
-__all__ = ["apply_outflow", "check_no_reappearance"]
+__all__ = ["apply_outflow", "check_no_reappearance", "count_vanished"]
 
 
 def apply_outflow(positions: np.ndarray, velocities: np.ndarray, outflow_z: float) -> int:
@@ -66,3 +66,48 @@ def check_no_reappearance(positions: np.ndarray, ids: np.ndarray, timesteps: np.
         f"({count} particle(s) do this); a particle that left cannot come back: dump all atoms "
         "in every frame (dump ... all custom ...), or pass the dumps of one run only"
     )
+
+
+def count_vanished(
+    positions: np.ndarray,
+    left: int,
+    outflow_z: float | None,
+    ids: np.ndarray,
+    timesteps: np.ndarray,
+) -> int:
+    """The particles that are gone from the last frame other than below ``outflow_z`` (deleted
+    by LIGGGHTS at its box, or by a ``delete_atoms``); one ``warning:`` line on standard error
+    when there are any, since a rollout treats them as gone through the floor.
+
+    Args:
+        positions: ``[T, N, 3]`` (m), NaN where absent (after :func:`apply_outflow`).
+        left: the particles :func:`apply_outflow` removed.
+        outflow_z: the outflow height (m), or None.
+        ids: ``[N]`` LIGGGHTS atom ids.
+        timesteps: ``[T]`` the frames' TIMESTEPs.
+
+    Returns:
+        Their number (the imported metadata's ``vanished``).
+    """
+    import sys
+
+    if not len(positions):
+        return 0
+    present = np.isfinite(positions[..., 0])
+    gone = present.any(0) & ~present[-1]
+    vanished = max(int(gone.sum()) - int(left), 0)
+    if vanished:
+        first = int(ids[np.flatnonzero(gone)[0]])
+        fix = (
+            "pass --outflow-z <z> (the height below which particles leave) if they leave "
+            "through an outlet"
+            if outflow_z is None
+            else f"they were never below --outflow-z {outflow_z:g}; check it"
+        )
+        print(
+            f"warning: dumps: {vanished} particle(s) vanish from the dumps before TIMESTEP "
+            f"{int(timesteps[-1])} (first: atom id {first}) and are counted as vanished in the "
+            f"metadata; {fix}",
+            file=sys.stderr,
+        )
+    return vanished

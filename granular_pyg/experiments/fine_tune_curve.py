@@ -27,8 +27,8 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
+from granular_pyg.checkpoint import resolve_checkpoint, safe_load
 from granular_pyg.cli import reports_errors
 from granular_pyg.data import load_split
 from granular_pyg.errors import InputError, whole_number
@@ -154,7 +154,7 @@ def fine_tune_curve(
                 with atomic_write(snapshot, "wb") as fh:
                     fh.write(ckpt.read_bytes())
             point = _evaluate(snapshot, scored, run / f"evaluate_{budget}min", threads)
-            steps = int(torch.load(snapshot, map_location="cpu", weights_only=False)["global_step"])
+            steps = int(safe_load(snapshot, "snapshot")["global_step"])
             curve["points"].append({"new": n, "minutes": budget, "steps": steps, **point})
             _write(curve, out)
     _write(curve, out)
@@ -162,8 +162,6 @@ def fine_tune_curve(
 
 
 def _evaluate_init(init: str, scored: list[Path], out: Path, threads: int) -> dict:
-    from granular_pyg.pretrained import resolve_checkpoint
-
     return _evaluate(resolve_checkpoint(init), scored, out / "evaluate_initial", threads)
 
 

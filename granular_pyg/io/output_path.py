@@ -49,6 +49,9 @@ def check_output(
         InputError: ``out`` is an input or inside an input folder, exists without
             ``overwrite``, its folder cannot be created or written, or the disk is nearly full.
     """
+    if not isinstance(overwrite, bool):  # "no" is a non-empty string: true to Python
+        name = overwrite_option.split("=")[0]
+        raise InputError(f"{name}: expected true or false, got {overwrite!r}")
     out = Path(out)
     for given in inputs:
         if given is None:

@@ -1,8 +1,12 @@
-"""``python -m granular_pyg.pretrained.export <ckpt> <name>``: ship a trained checkpoint.
+"""``python -m granular_pyg.pretrained.export <ckpt> <name> --out <file>``: ship a trained
+checkpoint.
 
 Keeps the model's config and weights (drops the optimiser and loop state: a few hundred kB
 instead of MBs), records what it was trained on, points its default test data at a bundled
-sample, and writes ``granular_pyg/pretrained/<name>_v3.ckpt`` atomically.
+sample, and writes the slim file atomically to ``--out``. It writes into the installed package
+(``granular_pyg/pretrained/<name>_v3.ckpt``, replacing ``pretrained:<name>``) only when asked
+with ``--overwrite`` and no ``--out``. The checkpoint is read safely
+(:func:`granular_pyg.checkpoint.read_training_checkpoint`).
 """
 
 from __future__ import annotations
@@ -12,17 +16,31 @@ from pathlib import Path
 
 import torch
 
+from granular_pyg.checkpoint import (
+    PREFIX,
+    PRETRAINED,
+    PRETRAINED_DIR,
+    build_model,
+    load_weights,
+    read_training_checkpoint,
+    resolve_checkpoint,
+)
 from granular_pyg.cli import reports_errors
 from granular_pyg.errors import InputError
-from granular_pyg.io import atomic_path
-from granular_pyg.pretrained import PRETRAINED
+from granular_pyg.io import atomic_path, check_output
 
 #: Largest file the package ships (bytes).
 MAX_BYTES = 10 * 2**20
 
 
 def export(
-    ckpt: str | Path, name: str, sample: str, note: str = "", folder: Path | None = None
+    ckpt: str | Path,
+    name: str,
+    sample: str,
+    note: str = "",
+    folder: Path | None = None,
+    out: str | Path | None = None,
+    overwrite: bool = False,
 ) -> Path:
     """Write the slim copy of ``ckpt`` as the pretrained model ``name``; returns its path.
 
@@ -31,13 +49,34 @@ def export(
         name: one of :data:`PRETRAINED`'s names.
         sample: the bundled sample (``hopper`` or ``drum``) its rollouts default to.
         note: free text on how well it does (kept in the file).
-        folder: where to write; default the package's ``pretrained/`` folder.
+        folder: write ``<folder>/<name>_v3.ckpt`` (tests; the package's folder needs
+            ``overwrite``).
+        out: the file to write (never ``ckpt``; an existing one only with ``overwrite``).
+        overwrite: replace an existing output, the shipped ``pretrained:<name>`` included.
+
+    Raises:
+        InputError: an unknown name, no output named, an unsafe, unreadable or non-training
+            checkpoint, weights that do not fit its config, an output that exists without
+            ``overwrite`` or is the input, a file too large to ship.
     """
     if name not in PRETRAINED:
         raise InputError(f"name: expected one of {sorted(PRETRAINED)}, got {name!r}")
-    full = torch.load(ckpt, map_location="cpu", weights_only=False)
-    config = full["config"]
-    trained_on = dict(config["data"])
+    if out is None and folder is None:
+        if not overwrite:
+            raise InputError(
+                f"--out: not given; pass --out <file>.ckpt, or --overwrite to replace the "
+                f"shipped {PREFIX}{name} inside the installed package ({PRETRAINED_DIR})"
+            )
+        folder = PRETRAINED_DIR
+    target = Path(out) if out is not None else Path(folder) / PRETRAINED[name]
+    source = resolve_checkpoint(ckpt, "ckpt")
+    target = check_output(
+        target, [source], overwrite, option="--out", overwrite_option="--overwrite"
+    )
+    path, full = read_training_checkpoint(source, "ckpt")
+    config = dict(full["config"])
+    load_weights(build_model(config["model"], f"ckpt: {path}"), full, f"ckpt: {path}")
+    trained_on = dict(config.get("data") or {})
     config["data"] = trained_on | {"root": None, "sample": sample}
     slim = {
         "config": config,
@@ -50,12 +89,11 @@ def export(
             "note": note,
         },
     }
-    out = Path(folder or Path(__file__).parent) / PRETRAINED[name]
-    with atomic_path(out) as tmp:
+    with atomic_path(target) as tmp:
         torch.save(slim, tmp)
         if tmp.stat().st_size > MAX_BYTES:
             raise InputError(f"{ckpt}: {tmp.stat().st_size} bytes, over the 10 MB a package ships")
-    return out
+    return target
 
 
 @reports_errors
@@ -65,8 +103,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("name", choices=sorted(PRETRAINED))
     parser.add_argument("--sample", default=None, help="bundled sample (default: the name)")
     parser.add_argument("--note", default="")
+    parser.add_argument("--out", default=None, help="the slim checkpoint to write (.ckpt)")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an existing --out; without --out: replace the shipped pretrained:<name>",
+    )
     args = parser.parse_args(argv)
-    out = export(args.ckpt, args.name, args.sample or args.name, args.note)
+    out = export(
+        args.ckpt, args.name, args.sample or args.name, args.note, None, args.out, args.overwrite
+    )
     print(f"pretrained model: {out} ({out.stat().st_size / 1e3:.0f} kB)")
 
 

@@ -116,11 +116,45 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
         ) from err
     faces = np.asarray(getattr(mesh, "faces", np.empty((0, 3))), np.int64)
     if faces.ndim != 2 or len(faces) == 0:
+        _check_binary_count(path)
         raise InputError(f"{path}: the STL file holds no triangles; export the mesh again")
     vertices, inverse = np.unique(
         np.asarray(mesh.vertices, np.float64), axis=0, return_inverse=True
     )
-    return vertices, inverse.reshape(-1)[faces]
+    faces = inverse.reshape(-1)[faces]
+    _check_some_area(path, vertices, faces)
+    return vertices, faces
+
+
+def _check_binary_count(path: Path) -> None:
+    """Refuse a binary STL whose header counts more triangles than the file holds (a truncated
+    file, or a header another tool got wrong), naming both counts."""
+    size = path.stat().st_size
+    with open(path, "rb") as handle:
+        head = handle.read(84)
+    if size < 84 or head.lstrip().lower().startswith(b"solid") and b"\0" not in head[:80]:
+        return
+    count = int.from_bytes(head[80:84], "little")
+    held = (size - 84) // 50
+    if count > held:
+        raise InputError(
+            f"{path}: its binary STL header counts {count} triangles but the file holds "
+            f"{held} ({size} bytes); the file is truncated or its header is wrong; export the "
+            "mesh again"
+        )
+
+
+def _check_some_area(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Refuse a mesh whose every triangle has zero area (repeated or collinear vertices): a
+    wall that would stop nothing."""
+    tri = vertices[faces]
+    extent = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    if not (area > 1e-12 * extent**2).any():
+        raise InputError(
+            f"{path}: all {len(faces)} triangles of the STL file have zero area (repeated or "
+            "collinear vertices), so the wall would stop nothing; export the mesh again"
+        )
 
 
 def _vector(name: str, value: Any, size: int) -> np.ndarray:

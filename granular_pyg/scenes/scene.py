@@ -435,6 +435,12 @@ class Scene:
         names = [w.name for w in self.walls]
         if len(set(names)) != len(names):
             raise InputError(f"scene {self.name}: wall names must be unique, got {names}")
+        for key in ("dem_dt", "frame_dt"):
+            value = getattr(self, key)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise InputError(
+                    f"scene {self.name}: {key} must be a time step > 0 s, got {value!r}"
+                )
         ratio = self.frame_dt / self.dem_dt
         if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
             raise InputError(

@@ -1,0 +1,189 @@
+"""Fine-tuning: train on new data starting from a trained model (``init=pretrained:<name>`` or a
+checkpoint), keeping its architecture, weights and normalisation; the optimiser starts afresh.
+
+:func:`with_initial_model` rewrites the composed training config before anything is built: the
+model section becomes the checkpoint's, the data's history and noise settings follow the
+checkpoint's training run, and ``data.frames_per_step`` is set so that the learned step stays
+the model's (``k = dt / frame spacing`` of the new data, a whole number).
+:func:`load_initial_weights` then puts the weights and statistics back after the data module
+has computed its own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from granular_pyg.checkpoint.files import read_training_checkpoint
+from granular_pyg.checkpoint.model import check_model_config, load_weights, whole_multiple
+from granular_pyg.checkpoint.saved_config import migrate_config
+from granular_pyg.config import flatten
+from granular_pyg.data.windows import load_split
+from granular_pyg.errors import InputError
+from granular_pyg.io import read_trajectory
+from granular_pyg.simulator import LearnedSimulator
+
+__all__ = [
+    "HONOURED_MODEL_KEYS",
+    "INHERITED_DATA_KEYS",
+    "load_initial_weights",
+    "merge_cards",
+    "with_initial_model",
+]
+
+#: Data settings a fine-tuning run takes over from the initial model's training run.
+INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
+#: Model options a fine-tuning run may change (how the graph is searched, not the network).
+HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors")
+
+
+def _read(init: str) -> dict:
+    path, ckpt = read_training_checkpoint(init, "init")
+    ckpt["config"] = migrate_config(ckpt["config"])
+    check_model_config(ckpt["config"]["model"], f"init: {path}")
+    return ckpt
+
+
+def _override_key(override: str) -> tuple[str, str] | None:
+    """``(key, value)`` of a ``key=value`` command-line override (``+``/``++`` stripped), or
+    None for a deletion (``~key``) or something else."""
+    if "=" not in override or override.startswith("~"):
+        return None
+    key, value = override.split("=", 1)
+    return key.lstrip("+"), value
+
+
+def _refuse_unhonoured(overrides: Sequence[str], saved: dict, init: str) -> list[str]:
+    """Check the user's command-line ``overrides`` against what fine-tuning keeps from the
+    initial model; returns the model overrides it honours (:data:`HONOURED_MODEL_KEYS`).
+
+    Raises:
+        InputError: an override of the model (or of its group), of an inherited data key, or of
+            ``data.frames_per_step``, whose value is not the initial model's.
+    """
+    model, data = flatten(saved.get("model", {})), flatten(saved.get("data", {}))
+    honoured = []
+    for override in overrides:
+        parsed = _override_key(override)
+        if parsed is None:
+            continue
+        key, value = parsed
+        if key == "model" or key.startswith("model/"):
+            raise InputError(
+                f"{override}: fine-tuning keeps the model of init={init}; drop {override}, or "
+                "train a new model without init="
+            )
+        section, _, rest = key.partition(".")
+        if section == "model" and rest:
+            if rest in HONOURED_MODEL_KEYS:
+                honoured.append(override)
+                continue
+            if rest in model and str(model[rest]).lower() == value.strip("'\"").lower():
+                continue
+            was = f"it has {model[rest]!r}" if rest in model else "it has no such key"
+            raise InputError(
+                f"{override}: fine-tuning keeps the architecture of init={init} ({was}); drop "
+                "the override, or train a new model without init="
+            )
+        if section == "data" and rest in (*INHERITED_DATA_KEYS, "frames_per_step"):
+            if rest in data and str(data[rest]).lower() == value.strip("'\"").lower():
+                continue
+            why = (
+                "set from the model's learned step and your frame spacing"
+                if rest == "frames_per_step"
+                else f"taken from the model's training run: {data.get(rest)!r}"
+            )
+            raise InputError(
+                f"{override}: fine-tuning cannot honour it (data.{rest} is {why}); drop the "
+                "override, or train a new model without init="
+            )
+    return honoured
+
+
+def _frame_spacing(cfg: DictConfig) -> float:
+    """Frame spacing (s) of the first training trajectory of ``cfg.data``."""
+    listed = (cfg.data.get("trajectories") or {}).get("train")
+    files = list(listed) if listed else load_split(cfg.data.root, cfg.data.sample, "train")
+    if not files:
+        raise InputError("data: the training split is empty; fine-tuning needs a trajectory")
+    return read_trajectory(files[0]).frame_dt
+
+
+def with_initial_model(
+    cfg: DictConfig, overrides: Sequence[str] = ()
+) -> tuple[DictConfig, dict]:
+    """``cfg`` with the model of checkpoint ``cfg.init``, and the checkpoint.
+
+    Returns:
+        ``(config, checkpoint)``: a copy of ``cfg`` whose ``model`` section is the
+        checkpoint's (with its learned step ``dt``, s), whose data history and noise follow the
+        checkpoint's run, and whose ``data.frames_per_step`` is ``dt`` over the new data's frame
+        spacing; the loaded checkpoint dict.
+
+    Args:
+        cfg: the composed training config, with ``init``.
+        overrides: the user's command-line overrides (``model.latent=32``...): those that
+            fine-tuning cannot honour (the architecture, the inherited data keys) are refused.
+
+    Raises:
+        InputError: a missing, unsafe or unreadable checkpoint, an override it cannot honour,
+            or new data whose frame spacing the model's step is not a whole multiple of.
+    """
+    ckpt = _read(str(cfg.init))
+    saved = ckpt["config"]
+    honoured = _refuse_unhonoured(overrides, saved, str(cfg.init))
+    cfg = OmegaConf.create(OmegaConf.to_container(cfg, resolve=False))
+    dt = float(saved["model"].get("dt") or 0.0)
+    if dt <= 0:
+        raise InputError(f"init: {cfg.init} does not record its learned step (model.dt)")
+    with open_dict(cfg):
+        kept = {key: OmegaConf.select(cfg, key) for key, _ in map(_override_key, honoured)}
+        cfg.model = OmegaConf.create(saved["model"])
+        for key, value in kept.items():
+            OmegaConf.update(cfg, key, value)
+        for key in INHERITED_DATA_KEYS:
+            if key in saved.get("data", {}):
+                cfg.data[key] = saved["data"][key]
+        frame_dt = _frame_spacing(cfg)
+        k = whole_multiple(dt, frame_dt)
+        if k is None:
+            raise InputError(
+                f"init: the model's learned step {dt:g} s is not a whole multiple of the new "
+                f"data's frame spacing {frame_dt:g} s; record frames every {dt:g} s / k"
+            )
+        cfg.data.frames_per_step = k
+    return cfg, ckpt
+
+
+def load_initial_weights(sim: LearnedSimulator, ckpt: dict) -> None:
+    """Load the checkpoint's weights and normalisation statistics into ``sim`` (after the data
+    module set its own); the learned step must be unchanged."""
+    dt = float(sim.dt)
+    load_weights(sim, ckpt, "init")
+    if abs(float(sim.dt) - dt) > 1e-9 * max(dt, 1e-30):
+        raise InputError(f"init: learned step {float(sim.dt):g} s, the data gives {dt:g} s")
+
+
+def merge_cards(initial: dict, new: dict, init: str) -> dict:
+    """The card of a fine-tuned model: ``new``'s, with each training-data range widened to
+    cover ``initial``'s too, and the source recorded under ``fine_tuned_from``."""
+    if not initial or not new:
+        return dict(new or initial) | {"fine_tuned_from": init}
+    old_data, data = initial.get("training_data", {}), dict(new.get("training_data", {}))
+
+    def union(a, b):
+        return [min(a[0], b[0]), max(a[1], b[1])]
+
+    for key in ("particle_radius_m", "particles", "frame_dt_s"):
+        if key in old_data and key in data:
+            data[key] = union(old_data[key], data[key])
+    materials = dict(data.get("materials", {}))
+    for name, bounds in old_data.get("materials", {}).items():
+        materials[name] = union(bounds, materials[name]) if name in materials else bounds
+    data["materials"] = materials
+    data["scene_kinds"] = sorted(
+        set(data.get("scene_kinds", [])) | set(old_data.get("scene_kinds", []))
+    )
+    data["trajectories"] = int(data.get("trajectories", 0)) + int(old_data.get("trajectories", 0))
+    return dict(new) | {"training_data": data, "fine_tuned_from": init}
