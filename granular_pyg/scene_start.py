@@ -92,5 +92,6 @@ def start_from_scene_config(scene_cfg, sim, seed: int = 0, steps: int | None = N
     scene = hydra.utils.instantiate(build, _convert_="all")
     k = time_step_multiple(sim, float(scene.frame_dt))
     start = scene_start(scene, sim.history, k, seed=whole_number("seed", seed))
-    total = whole_job_steps(scene, sim.history, k) if steps is None else whole_number("steps", steps)
-    return start, total
+    if steps is None:
+        return start, whole_job_steps(scene, sim.history, k)
+    return start, whole_number("steps", steps)
