@@ -17,9 +17,10 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from granular_pyg import metrics
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
-from granular_pyg.errors import InputError, whole_number
+from granular_pyg.errors import InputError, flag, whole_number
 from granular_pyg.evaluation import evaluate_pair, write_evaluation
 from granular_pyg.evaluation.compare import VARIANTS
 from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, rollout_label
@@ -27,7 +28,9 @@ from granular_pyg.inference import (
     available_steps,
     load_simulator,
     matching_frames,
+    outside_scene,
     rollout_trajectory,
+    time_step_multiple,
     warn_outside_training,
 )
 from granular_pyg.io import (
@@ -36,6 +39,11 @@ from granular_pyg.io import (
     export_paraview,
     read_trajectory,
     write_trajectory,
+)
+from granular_pyg.scene_start import (
+    BY_INDEX_SCALARS,
+    recorded_part,
+    scene_start,
 )
 
 __all__ = ["evaluate", "selected_files"]
@@ -67,33 +75,47 @@ def evaluate(cfg: DictConfig) -> Path:
     }
     every = [file for files in selected.values() for file in files]
     start_frame = whole_number("start_frame", cfg.get("start_frame", 0))
+    from_scene = flag("from_scene", cfg.get("from_scene", False))
     names = dict(zip(every, distinct_names(every), strict=True))  # families share file names
     for split, files in selected.items():
         for file in files:
             label = rollout_label(split, names[file])
             truth = read_trajectory(file)
             warn_outside_training(config, truth, str(file))
+            options = {
+                "progress": cfg.progress,
+                "skin": cfg.skin,
+                "wall_guard": cfg.wall_guard,
+                "precision": str(cfg.get("precision", "32")),
+            }
             start = time.perf_counter()
-            pred = rollout_trajectory(
-                sim,
-                truth,
-                _steps_within(cfg.steps, sim, truth, str(file), start_frame),
-                progress=cfg.progress,
-                skin=cfg.skin,
-                wall_guard=cfg.wall_guard,
-                precision=str(cfg.get("precision", "32")),
-                start_frame=start_frame,
-            )
-            wall = time.perf_counter() - start
+            if from_scene:  # the whole job: fill, settle and discharge, network alone
+                whole = _rollout_from_scene(sim, truth, options)
+                wall = time.perf_counter() - start
+                pred = recorded_part(whole, truth)
+            else:
+                pred = rollout_trajectory(
+                    sim,
+                    truth,
+                    _steps_within(cfg.steps, sim, truth, str(file), start_frame),
+                    start_frame=start_frame,
+                    **options,
+                )
+                wall = time.perf_counter() - start
             pred_file = out / "rollouts" / f"{label}.h5"
             pred.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(file)}
             write_trajectory(pred, pred_file)
+            if from_scene:  # the fill and settle too
+                whole.metadata |= {"ckpt": str(cfg.ckpt), "truth_file": str(file)}
+                write_trajectory(whole, out / "rollouts" / f"{label}_whole_job.h5")
             evaluation = evaluate_pair(truth, pred)
             # The learned rollout alone (graphs, network, integration, outflow, guard), not
             # the file writing or the metrics.
             evaluation.scalars["rollout_wall_s"] = wall
             first = int(pred.metadata.get("initial_frames", 1)) - 1
             evaluation.scalars["rollout_simulated_s"] = float(pred.times[-1] - pred.times[first])
+            if from_scene:
+                _whole_job_scalars(evaluation.scalars, whole)
             if cfg.wall_guard:  # how often the guard stepped in: the network's own leaks
                 corrections = float(pred.metadata["wall_guard_corrections"])
                 evaluation.scalars["wall_guard_corrections"] = corrections
@@ -118,6 +140,7 @@ def evaluate(cfg: DictConfig) -> Path:
         "data": {"root": root, "sample": sample},
         "command": _command(cfg),
         "threads": int(torch.get_num_threads()),
+        "from_scene": bool(from_scene),
         "device": "cpu",
     }
     report = write_evaluation(out, rollouts, info)
@@ -126,6 +149,47 @@ def evaluate(cfg: DictConfig) -> Path:
         print(f"{split}: {shown}")
     print(f"report: {report}")
     return report
+
+
+def _rollout_from_scene(sim, truth: Trajectory, options: dict) -> Trajectory:
+    """A rollout of ``sim`` from ``truth``'s Scene alone (packed at rest at the start of the
+    fill, seeded by the truth's LIGGGHTS seed) to ``truth``'s last recorded time."""
+    k = time_step_multiple(sim, float(truth.frame_dt))
+    start = scene_start(truth.scene, sim.history, k, seed=int(truth.metadata.get("seed", 0)))
+    if start.num_particles != truth.num_particles:
+        raise InputError(
+            f"from_scene: the scene inserts {start.num_particles} particles, its LIGGGHTS run "
+            f"holds {truth.num_particles}; evaluate from_scene only on complete fills"
+        )
+    steps = round((float(truth.times[-1]) - float(start.times[-1])) / float(sim.dt))
+    return rollout_trajectory(sim, start, steps, name="the scene's packing", **options)
+
+
+def _whole_job_scalars(scalars: dict, whole: Trajectory) -> None:
+    """An evaluation from the scene alone: its scalars that pair particles by index are NaN
+    (the packing is not LIGGGHTS's), the leaks count the fill and settle too, and the
+    simulated time is the whole job's."""
+    for key in BY_INDEX_SCALARS:
+        scalars[key] = float("nan")
+    # A packed particle above the walls (the region rose to hold the bed) is not a leak: each
+    # particle is followed from the first frame it lies inside the walls and the box.
+    entered = np.full(whole.num_particles, whole.num_frames)
+    for f in range(whole.num_frames):
+        present = np.isfinite(whole.positions[f]).all(1)
+        inside = present & ~outside_scene(whole, f)
+        entered = np.where((entered == whole.num_frames) & inside, f, entered)
+        if (entered < whole.num_frames).all():
+            break
+    followed = np.where(
+        np.arange(whole.num_frames)[:, None, None] >= entered[None, :, None], whole.positions, np.nan
+    )
+    # Crossings and box exits after that (its first frame is inside by construction).
+    leaked = metrics.leaked_mask(followed, whole.scene, whole.times, initial=False).any(0)
+    scalars["leaked_particles"] = float(leaked.sum())
+    scalars["never_inside_walls"] = float((entered == whole.num_frames).sum())
+    first = int(whole.metadata.get("initial_frames", 1)) - 1
+    scalars["rollout_simulated_s"] = float(whole.times[-1] - whole.times[first])
+    scalars["from_scene"] = 1.0
 
 
 def _steps_within(
@@ -183,6 +247,8 @@ def _command(cfg: DictConfig) -> str:
             parts.append(f"{key}={cfg[key]}")
     if cfg.wall_guard:
         parts.append("wall_guard=true")
+    if cfg.get("from_scene"):
+        parts.append("from_scene=true")
     return "python -m granular_pyg.evaluate " + " ".join(parts)
 
 

@@ -19,7 +19,13 @@ from granular_pyg.io import Trajectory
 from granular_pyg.scenes import Scene
 from granular_pyg.scenes.packing import MAX_FRACTION, pack_particles
 
-__all__ = ["scene_start", "start_from_scene_config", "whole_job_steps"]
+__all__ = [
+    "BY_INDEX_SCALARS",
+    "recorded_part",
+    "scene_start",
+    "start_from_scene_config",
+    "whole_job_steps",
+]
 
 
 def scene_start(
@@ -95,3 +101,43 @@ def start_from_scene_config(scene_cfg, sim, seed: int = 0, steps: int | None = N
     if steps is None:
         return start, whole_job_steps(scene, sim.history, k)
     return start, whole_number("steps", steps)
+
+
+#: Scalars that pair particles by index: meaningless where the rollout's particles were packed
+#: anew (NaN in an evaluation from the scene alone).
+BY_INDEX_SCALARS = ("position_mse", "mixing_entropy_error")
+
+
+def recorded_part(pred: Trajectory, truth: Trajectory) -> Trajectory:
+    """The frames of a rollout from the scene alone at the recorded times of ``truth``
+    (``t >= truth.times[0]``), their times set to ``truth``'s, as a rollout with one initial
+    frame (metadata ``initial_frames = 1``), for :func:`granular_pyg.evaluation.evaluate_pair`.
+
+    Raises:
+        InputError: the rollout does not reach the recorded times, or its frames do not fall
+            on ``truth``'s frames (a learned step that does not divide the settle time).
+    """
+    import dataclasses
+
+    keep = pred.times >= truth.times[0] - 1e-6 * truth.frame_dt
+    keep &= pred.times <= truth.times[-1] + 1e-6 * truth.frame_dt
+    if keep.sum() < 2:
+        raise InputError(
+            "from_scene: the rollout from the scene alone does not reach two recorded frames; "
+            "roll out longer (steps=null)"
+        )
+    idx = np.searchsorted(truth.times, pred.times[keep] - 1e-6 * truth.frame_dt)
+    idx = np.clip(idx, 0, truth.num_frames - 1)
+    if np.any(np.abs(truth.times[idx] - pred.times[keep]) > 1e-3 * truth.frame_dt):
+        raise InputError(
+            "from_scene: the rollout's frames do not fall on the ground truth's frames (the "
+            "settle time is not a whole number of learned steps)"
+        )
+    metadata = dict(pred.metadata) | {"initial_frames": 1, "steps": int(keep.sum()) - 1}
+    return dataclasses.replace(
+        pred,
+        positions=pred.positions[keep],
+        velocities=pred.velocities[keep],
+        times=truth.times[idx],
+        metadata=metadata,
+    )
