@@ -180,9 +180,8 @@ def _whole_job_scalars(scalars: dict, whole: Trajectory) -> None:
         entered = np.where((entered == whole.num_frames) & inside, f, entered)
         if (entered < whole.num_frames).all():
             break
-    followed = np.where(
-        np.arange(whole.num_frames)[:, None, None] >= entered[None, :, None], whole.positions, np.nan
-    )
+    after = np.arange(whole.num_frames)[:, None, None] >= entered[None, :, None]
+    followed = np.where(after, whole.positions, np.nan)
     # Crossings and box exits after that (its first frame is inside by construction).
     leaked = metrics.leaked_mask(followed, whole.scene, whole.times, initial=False).any(0)
     scalars["leaked_particles"] = float(leaked.sum())
