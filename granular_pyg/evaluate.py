@@ -17,7 +17,6 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
-from granular_pyg import metrics
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
 from granular_pyg.errors import InputError, flag, whole_number
@@ -28,7 +27,6 @@ from granular_pyg.inference import (
     available_steps,
     load_simulator,
     matching_frames,
-    outside_scene,
     rollout_trajectory,
     time_step_multiple,
     warn_outside_training,
@@ -40,11 +38,7 @@ from granular_pyg.io import (
     read_trajectory,
     write_trajectory,
 )
-from granular_pyg.scene_start import (
-    BY_INDEX_SCALARS,
-    recorded_part,
-    scene_start,
-)
+from granular_pyg.scene_start import recorded_part, scene_start, whole_job_scalars
 
 __all__ = ["evaluate", "selected_files"]
 
@@ -115,7 +109,7 @@ def evaluate(cfg: DictConfig) -> Path:
             first = int(pred.metadata.get("initial_frames", 1)) - 1
             evaluation.scalars["rollout_simulated_s"] = float(pred.times[-1] - pred.times[first])
             if from_scene:
-                _whole_job_scalars(evaluation.scalars, whole)
+                whole_job_scalars(evaluation.scalars, whole)
             if cfg.wall_guard:  # how often the guard stepped in: the network's own leaks
                 corrections = float(pred.metadata["wall_guard_corrections"])
                 evaluation.scalars["wall_guard_corrections"] = corrections
@@ -163,32 +157,6 @@ def _rollout_from_scene(sim, truth: Trajectory, options: dict) -> Trajectory:
         )
     steps = round((float(truth.times[-1]) - float(start.times[-1])) / float(sim.dt))
     return rollout_trajectory(sim, start, steps, name="the scene's packing", **options)
-
-
-def _whole_job_scalars(scalars: dict, whole: Trajectory) -> None:
-    """An evaluation from the scene alone: its scalars that pair particles by index are NaN
-    (the packing is not LIGGGHTS's), the leaks count the fill and settle too, and the
-    simulated time is the whole job's."""
-    for key in BY_INDEX_SCALARS:
-        scalars[key] = float("nan")
-    # A packed particle above the walls (the region rose to hold the bed) is not a leak: each
-    # particle is followed from the first frame it lies inside the walls and the box.
-    entered = np.full(whole.num_particles, whole.num_frames)
-    for f in range(whole.num_frames):
-        present = np.isfinite(whole.positions[f]).all(1)
-        inside = present & ~outside_scene(whole, f)
-        entered = np.where((entered == whole.num_frames) & inside, f, entered)
-        if (entered < whole.num_frames).all():
-            break
-    after = np.arange(whole.num_frames)[:, None, None] >= entered[None, :, None]
-    followed = np.where(after, whole.positions, np.nan)
-    # Crossings and box exits after that (its first frame is inside by construction).
-    leaked = metrics.leaked_mask(followed, whole.scene, whole.times, initial=False).any(0)
-    scalars["leaked_particles"] = float(leaked.sum())
-    scalars["never_inside_walls"] = float((entered == whole.num_frames).sum())
-    first = int(whole.metadata.get("initial_frames", 1)) - 1
-    scalars["rollout_simulated_s"] = float(whole.times[-1] - whole.times[first])
-    scalars["from_scene"] = 1.0
 
 
 def _steps_within(

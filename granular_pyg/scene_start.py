@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from granular_pyg import inference, metrics
 from granular_pyg.errors import InputError
 from granular_pyg.io import Trajectory
 from granular_pyg.scenes import Scene
@@ -24,6 +25,7 @@ __all__ = [
     "recorded_part",
     "scene_start",
     "start_from_scene_config",
+    "whole_job_scalars",
     "whole_job_steps",
 ]
 
@@ -141,3 +143,30 @@ def recorded_part(pred: Trajectory, truth: Trajectory) -> Trajectory:
         times=truth.times[idx],
         metadata=metadata,
     )
+
+
+def whole_job_scalars(scalars: dict, whole: Trajectory) -> None:
+    """Set ``scalars`` of a rollout from the scene alone (``whole``, fill and settle
+    included): its scalars that pair particles by index are NaN
+    (the packing is not LIGGGHTS's), the leaks count the fill and settle too, and the
+    simulated time is the whole job's."""
+    for key in BY_INDEX_SCALARS:
+        scalars[key] = float("nan")
+    # A packed particle above the walls (the region rose to hold the bed) is not a leak: each
+    # particle is followed from the first frame it lies inside the walls and the box.
+    entered = np.full(whole.num_particles, whole.num_frames)
+    for f in range(whole.num_frames):
+        present = np.isfinite(whole.positions[f]).all(1)
+        inside = present & ~inference.outside_scene(whole, f)
+        entered = np.where((entered == whole.num_frames) & inside, f, entered)
+        if (entered < whole.num_frames).all():
+            break
+    after = np.arange(whole.num_frames)[:, None, None] >= entered[None, :, None]
+    followed = np.where(after, whole.positions, np.nan)
+    # Crossings and box exits after that (its first frame is inside by construction).
+    leaked = metrics.leaked_mask(followed, whole.scene, whole.times, initial=False).any(0)
+    scalars["leaked_particles"] = float(leaked.sum())
+    scalars["never_inside_walls"] = float((entered == whole.num_frames).sum())
+    first = int(whole.metadata.get("initial_frames", 1)) - 1
+    scalars["rollout_simulated_s"] = float(whole.times[-1] - whole.times[first])
+    scalars["from_scene"] = 1.0

@@ -24,6 +24,9 @@ __all__ = ["Packing", "pack_particles"]
 
 #: Default solid fraction of the region the packing aims at (LIGGGHTS's batches: 0.15).
 MAX_FRACTION = 0.2
+#: Rounds of draws after which a region that has not taken every particle grows by half its
+#: height on top (up to the ceiling).
+ROUNDS_BEFORE_RAISING = 100
 
 
 @dataclass
@@ -68,7 +71,9 @@ def pack_particles(
         spec: the particles and their region.
         seed: random seed.
         max_fraction: the solid fraction of the region above which its top is raised.
-        ceiling: the highest the region's top may go (m); None: no limit.
+        ceiling: the highest the region's top may go (m); None: no limit. Below the ceiling
+            the top also rises by half the region's height every 100 rounds that leave
+            particles unplaced (a thin region jams well below ``max_fraction``).
         max_rounds: rounds of draws before giving up.
 
     Returns:
@@ -110,6 +115,10 @@ def pack_particles(
     rounds = 0
     while len(todo) and rounds < max_rounds:
         rounds += 1
+        if rounds % ROUNDS_BEFORE_RAISING == 0 and (ceiling is None or hi[2] < ceiling):
+            # Jammed (a thin region jams early): more room on top for the rest.
+            grown = hi[2] + 0.5 * (hi[2] - lo[2])
+            hi[2] = grown if ceiling is None else min(grown, float(ceiling))
         cand = _draw(rng, radii[todo], lo, hi, shape)
         ok = np.ones(len(todo), bool)
         if len(pos):

@@ -67,8 +67,9 @@ def test_a_region_too_small_for_its_particles_is_made_taller_or_refused():
     spec = ParticleSpec(200, 0.002, (0.0, 0.0, 0.0), (0.02, 0.02, 0.02))
     solid = 200 * 4 / 3 * math.pi * 0.002**3
     packing = pack_particles(spec, seed=0, max_fraction=0.2)
-    assert packing.region_hi[2] == pytest.approx(solid / 0.2 / 0.02**2)
-    assert packing.fraction == pytest.approx(0.2)
+    # Raised to hold them at 0.2 at least (and by half its height per 100 jammed rounds).
+    assert packing.region_hi[2] >= solid / 0.2 / 0.02**2 - 1e-12
+    assert packing.fraction <= 0.2 + 1e-12
     assert _overlaps(packing.positions, packing.radii) == 0
     with pytest.raises(InputError, match=r"only \d+ of 200 particles fit .* region taller"):
         pack_particles(spec, seed=0, ceiling=0.02, max_rounds=30)
