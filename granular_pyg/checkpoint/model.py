@@ -34,6 +34,8 @@ MODEL_TARGETS = frozenset(
         "granular_pyg.simulator.LearnedSimulator",
         "granular_pyg.nn.Processor",
         "granular_pyg.nn.processor.Processor",
+        "granular_pyg.nn.HorizontalEquivariantProcessor",
+        "granular_pyg.nn.horizontal_equivariant.HorizontalEquivariantProcessor",
     }
 )
 
