@@ -161,6 +161,13 @@ def _edited(name: str, edit: Callable[[dict], object]) -> Callable[[Path], list[
     return make
 
 
+def _cut_manifest(tmp: Path) -> list[Path]:
+    """A dataset folder whose manifest was cut off mid-file."""
+    (tmp / "data").mkdir()
+    (tmp / "data" / "manifest.json").write_text('{"scene_config": {"name": "hop')
+    return [tmp / "data" / "manifest.json"]
+
+
 def _shipped_hopper(tmp: Path) -> list[Path]:
     return [resolve_checkpoint("pretrained:hopper")]
 
@@ -199,6 +206,7 @@ MAKERS: dict[str, Callable[[Path], list[Path]]] = {
     "history3.ckpt": _edited("history3.ckpt", _history_3),
     "nodata.ckpt": _edited("nodata.ckpt", _no_data),
     "shipped:hopper": _shipped_hopper,
+    "data/manifest.json": _cut_manifest,
 }
 
 
@@ -481,6 +489,16 @@ CASES = [
          ["+experiment=finetune", "init=pretrained:hopper", "data.root=null",
           "data.sample=hopper", "model.latent=32"],
          words=("model.latent=32", "fine-tuning keeps the architecture", "latent")),
+    Case("generate-dem-dt-0", "granular_pyg.generate",
+         [*TINY_GENERATE, "scene.ranges={}", "scene.build.dem_dt=0", "out=data"],
+         words=("dem_dt", "> 0", "got 0"), absent=("data/traj_0000.h5",)),
+    Case("generate-num-particles-0", "granular_pyg.generate",
+         [*(o for o in TINY_GENERATE if "num_particles" not in o), "scene.ranges={}",
+          "scene.build.num_particles=0", "out=data"],
+         words=("num_particles",), absent=("data/traj_0000.h5",)),
+    Case("generate-manifest-cut-off", "granular_pyg.generate", [*TINY_GENERATE, "out=data"],
+         inputs=("data/manifest.json",), words=("manifest.json", "not valid JSON", "rerun"),
+         absent=("data/traj_0000.h5",)),
     Case("train-run-folder-unwritable", "granular_pyg.train", ["hydra.run.dir=locked/run"],
          inputs=("locked/",), words=("hydra.run.dir", "locked", "not writable")),
 ]  # fmt: skip
