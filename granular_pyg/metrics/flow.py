@@ -202,6 +202,7 @@ def discharge_rate(
     outlet_z: float,
     mass: np.ndarray,
     window: tuple[float, float] = (0.2, 0.8),
+    first_frame: int = 0,
 ) -> tuple[float, tuple[float, float]]:
     """Mass flow rate (kg/s) through the outlet: a line fitted to the discharged mass of the
     initial bed (:func:`discharge_curve`).
@@ -219,6 +220,9 @@ def discharge_rate(
         outlet_z: outlet height (m).
         mass: ``[N]`` particle masses (kg).
         window: fractions of the initial bed's mass that bound the fit.
+        first_frame: frames before it are left out of the fit (a rollout's copied initial
+            states: a window that ends among them is no measure of the model); the bed is
+            still that of frame 0.
 
     Returns:
         ``(rate kg/s, (t_start, t_end) s)`` of the fit.
@@ -236,7 +240,7 @@ def discharge_rate(
     lo, hi = window[0] * bed, window[1] * bed
     started = np.flatnonzero(discharged >= lo) if bed > 0 else np.array([], dtype=int)
     ended = np.flatnonzero(discharged >= hi)
-    first = int(started[0]) if started.size else len(times)
+    first = max(int(started[0]), int(first_frame)) if started.size else len(times)
     last = int(ended[0]) if ended.size else len(times) - 1
     if last - first + 1 < 3:
         raise InputError(

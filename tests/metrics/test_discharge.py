@@ -170,3 +170,15 @@ def test_the_built_in_hopper_has_a_wall_to_wall_slot():
     found = outlet_of(dataclasses.replace(scene, params={}))
     assert found.shape == "rectangle"
     assert (found.width, found.length) == pytest.approx((0.018, 0.03), rel=1e-9)
+
+
+def test_frames_before_first_frame_are_left_out_of_the_fit():
+    """A rollout's copied initial states are the truth's: a window among them measures nothing
+    of the model, so the fit starts at ``first_frame`` (and fails if 80% was passed before)."""
+    n, times = 100, np.arange(0.0, 1.5, 0.01)
+    pos = _leaving(times, 0.1 + 0.01 * np.arange(n))
+    mass = np.full(n, 0.002)
+    rate, (t0, _) = discharge_rate(times, pos, 0.0, mass, first_frame=50)
+    assert t0 == times[50] and rate == pytest.approx(0.2, rel=0.05)
+    with pytest.raises(InputError, match="too little discharge"):
+        discharge_rate(times, pos, 0.0, mass, first_frame=100)
