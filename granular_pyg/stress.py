@@ -283,8 +283,10 @@ def _figure(results: dict[str, tuple[dict, list[dict]]]):
         if summary["first_failure_step"] >= 0:
             for ax in axes:
                 ax.axvline(summary["first_failure_step"] + 1, ls=":", lw=1, color="k")
-    for ax in axes[:2]:
-        ax.set_yscale("log")
+    for ax in axes[:2]:  # log scale where there is something positive to show (not at step 1)
+        values = [v for line in ax.get_lines() for v in line.get_ydata() if v is not None]
+        if any(math.isfinite(float(v)) and float(v) > 0 for v in values):
+            ax.set_yscale("log")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     return fig

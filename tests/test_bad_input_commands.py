@@ -254,6 +254,10 @@ def _stress_without_drum(tmp: Path, done: subprocess.CompletedProcess) -> None:
     assert cases == {"hopper_resting", "hopper_discharging", "drum_precision"}, cases
 
 
+def _stress_figure(tmp: Path) -> None:
+    assert (tmp / "st" / "stress.png").is_file() and (tmp / "st" / "stress.json").is_file()
+
+
 # -- the cases ---------------------------------------------------------------------------------
 
 
@@ -489,6 +493,10 @@ CASES = [
          ["+experiment=finetune", "init=pretrained:hopper", "data.root=null",
           "data.sample=hopper", "model.latent=32"],
          words=("model.latent=32", "fine-tuning keeps the architecture", "latent")),
+    Case("stress-quick-steps-1", "granular_pyg.stress",
+         ["~cases.hopper_discharging", "~cases.drum", "~cases.drum_precision", "quick=true",
+          "quick_steps=1", "progress=false", "hydra.run.dir=st"],
+         status=0, check=lambda tmp, done: _stress_figure(tmp)),
     Case("generate-dem-dt-0", "granular_pyg.generate",
          [*TINY_GENERATE, "scene.ranges={}", "scene.build.dem_dt=0", "out=data"],
          words=("dem_dt", "> 0", "got 0"), absent=("data/traj_0000.h5",)),
