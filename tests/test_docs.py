@@ -340,6 +340,35 @@ def test_every_command_in_the_docs_parses(doc, monkeypatch):
     assert {c: p for c, p in problems.items() if p} == {}
 
 
+def command_style_problems(readme: str, package: Path) -> list[str]:
+    """The README's Configs section names which commands are Hydra and which take ``--flags``;
+    each named one is of its style, and every argparse entry point is named."""
+    text = " ".join(_section(readme, "## Configs").split())
+    hydra_part = text[text.index("Hydra:") : text.index("takes `key=value`")]
+    flags_part = text[text.index("The tools") : text.index("take `--flags`")]
+    hydra_named = re.findall(r"`(\w[\w.]*)`", hydra_part)
+    flags_named = re.findall(r"`(\w[\w.]*)`", flags_part)
+    problems = []
+    for name in hydra_named + flags_named:
+        path = _module_file(f"granular_pyg.{name}")
+        source = path.read_text() if path else ""
+        is_hydra = "@command(" in source
+        if path is None or is_hydra != (name in hydra_named):
+            style = "Hydra" if name in hydra_named else "--flags"
+            problems.append(f"README: `{name}` is listed as a {style} command; it is not one")
+    for path in sorted(package.rglob("*.py")):
+        source = path.read_text()
+        if "argparse" in source and '__name__ == "__main__"' in source:
+            name = ".".join(path.relative_to(package).with_suffix("").parts)
+            if name not in flags_named:
+                problems.append(f"README: the --flags command `{name}` is not listed")
+    return problems
+
+
+def test_the_readme_names_each_commands_style():
+    assert command_style_problems(README.read_text(), PACKAGE) == []
+
+
 def test_the_readme_and_the_architecture_show_commands():
     assert len(commands(README.read_text())) >= 10
     assert len(commands(ARCHITECTURE.read_text())) >= 10
@@ -426,6 +455,17 @@ def test_a_layout_with_a_missing_file_or_a_module_left_out_fails(tmp_path):
         "layout: granular_pyg/dem/z.py does not exist",
         "layout: granular_pyg/dem/y.py is not listed beside the rest of granular_pyg/dem/",
     ]
+
+
+def test_a_command_style_the_readme_does_not_state_fails(tmp_path):
+    readme = README.read_text().replace("`data.combine`, ", "")
+    assert command_style_problems(readme, PACKAGE) == [
+        "README: the --flags command `data.combine` is not listed"
+    ]
+    readme = README.read_text().replace("`bench` takes", "`bench`, `demo` takes")
+    assert "README: `demo` is listed as a Hydra command; it is not one" in command_style_problems(
+        readme, PACKAGE
+    )
 
 
 def test_a_command_that_does_not_parse_fails(monkeypatch):
