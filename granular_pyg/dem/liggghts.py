@@ -79,6 +79,7 @@ class DemRun:
         version: LIGGGHTS's version line.
         wall_time_s: wall time of the ``liggghts`` process (s).
         inserted: particles present after filling and settling.
+        conversion_time_s: time (s) spent turning the dump into a trajectory, once done.
     """
 
     workdir: Path
@@ -86,6 +87,7 @@ class DemRun:
     version: str
     wall_time_s: float
     inserted: int
+    conversion_time_s: float = 0.0
 
 
 def find_liggghts(executable: str | None = None) -> str:
