@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import os
+import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -49,6 +50,8 @@ EXIT_INTERRUPTED = 130
 #: Options whose default is true/false but which take other values too (Lightning's
 #: ``save_last`` takes ``link``).
 NOT_ONLY_BOOLEAN = frozenset({"checkpoint.save_last"})
+#: Free space (bytes) a run folder's disk needs before a command starts (logs, checkpoints).
+RUN_FOLDER_MIN_FREE = 50 * 2**20
 
 
 def debugging() -> bool:
@@ -220,6 +223,12 @@ def _check_run_folder(cfg) -> None:
         raise InputError(
             f"hydra.run.dir: cannot create the run folder {folder} ({existing} is not writable); "
             "run from a writable folder or pass hydra.run.dir=<a writable folder>"
+        )
+    free = shutil.disk_usage(existing).free if existing.is_dir() else RUN_FOLDER_MIN_FREE
+    if free < RUN_FOLDER_MIN_FREE:
+        raise InputError(
+            f"hydra.run.dir: only {free / 2**20:.0f} MiB free for the run folder {folder}; free "
+            "some space or pass hydra.run.dir=<a folder on another disk>"
         )
 
 

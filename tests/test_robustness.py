@@ -348,3 +348,20 @@ def test_negative_or_nan_noise_is_refused():
     for value, shown in ((-1e-4, "-0.0001"), (float("nan"), "nan")):
         with pytest.raises(InputError, match=rf"data\.noise_std: expected a finite number.*{shown}"):
             finite_number("data.noise_std", value, minimum=0.0)
+
+
+def test_a_run_folder_on_a_full_disk_is_refused_before_hydra_makes_it(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    from omegaconf import OmegaConf
+
+    from granular_pyg.cli import _check_run_folder
+
+    cfg = OmegaConf.create({"hydra": {"run": {"dir": str(tmp_path / "outputs" / "run")}}})
+    _check_run_folder(cfg)  # room enough
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 2**20, 2**20))
+    with pytest.raises(InputError, match=r"hydra\.run\.dir: only 1 MiB free for the run folder"):
+        _check_run_folder(cfg)
+    assert not (tmp_path / "outputs").exists()
