@@ -205,7 +205,9 @@ def check_booleans(cfg, reference) -> None:
             continue
         value = OmegaConf.select(cfg, key, default=default, throw_on_missing=False)
         if not isinstance(value, bool):
-            raise InputError(f"{key}: expected true or false, got {value!r}; write {key}=true or {key}=false")
+            raise InputError(
+                f"{key}: expected true or false, got {value!r}; write {key}=true or {key}=false"
+            )
     if "threads" in cfg and not OmegaConf.is_missing(cfg, "threads"):
         whole_number("threads", cfg.threads, minimum=1)
 

@@ -50,7 +50,9 @@ def flag(name: str, value) -> bool:
         InputError: naming ``name`` and the value.
     """
     if not isinstance(value, bool):
-        raise InputError(f"{name}: expected true or false, got {value!r}; write {name}=true or {name}=false")
+        raise InputError(
+            f"{name}: expected true or false, got {value!r}; write {name}=true or {name}=false"
+        )
     return value
 
 

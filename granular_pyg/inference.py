@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import sys
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -91,8 +90,9 @@ def outside_scene(truth: Trajectory, frame: int) -> np.ndarray:
             inner = inside_closed_surface(p, triangles)
         else:
             inner = inside_convex_hull(p, triangles.reshape(-1, 3), tol=-slack)
-            if not inside_convex_hull(triangles.reshape(-1, 3).mean(0, keepdims=True),
-                                      triangles.reshape(-1, 3)).any():
+            if not inside_convex_hull(
+                triangles.reshape(-1, 3).mean(0, keepdims=True), triangles.reshape(-1, 3)
+            ).any():
                 inner[:] = True  # walls that enclose no volume (a plate): nothing to test
         if scene.outflow_z is not None:
             inner |= p[:, 2] < triangles[..., 2].min()

@@ -14,9 +14,9 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig
 
+from granular_pyg.checkpoint import load_simulator, resolve_checkpoint
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
-from granular_pyg.checkpoint import load_simulator, resolve_checkpoint
 from granular_pyg.errors import InputError, Interrupted, NonFiniteError, flag, whole_number
 from granular_pyg.inference import rollout_trajectory, warn_outside_training
 from granular_pyg.io import (

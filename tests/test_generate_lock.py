@@ -30,9 +30,9 @@ def test_a_folder_held_by_another_run_is_refused(tmp_path):
     )  # fmt: skip
     try:
         assert holder.stdout.readline().strip() == "held"
-        with pytest.raises(InputError, match=rf"another generate \(process {holder.pid}\) is "):
-            with folder_lock(tmp_path):
-                pass
+        busy = rf"another generate \(process {holder.pid}\) is "
+        with pytest.raises(InputError, match=busy), folder_lock(tmp_path):
+            pass
         done = subprocess.run(
             [sys.executable, "-m", "granular_pyg.generate", *TINY, "n=1", f"out={tmp_path}"],
             capture_output=True, text=True, timeout=120,

@@ -346,7 +346,9 @@ def test_negative_or_nan_noise_is_refused():
     from granular_pyg.errors import finite_number
 
     for value, shown in ((-1e-4, "-0.0001"), (float("nan"), "nan")):
-        with pytest.raises(InputError, match=rf"data\.noise_std: expected a finite number.*{shown}"):
+        with pytest.raises(
+            InputError, match=rf"data\.noise_std: expected a finite number.*{shown}"
+        ):
             finite_number("data.noise_std", value, minimum=0.0)
 
 

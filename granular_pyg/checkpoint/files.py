@@ -85,7 +85,9 @@ def _unsafe_name(exc: BaseException) -> str | None:
     """The global a refused pickle names (torch's message: ``GLOBAL os.system was not an
     allowed global``), or None when the failure is of another kind."""
     text = str(exc)
-    found = re.search(r"GLOBAL ([\w.]+)", text) or re.search(r"Unsupported (?:global|class):? ?([\w.]+)", text)
+    found = re.search(r"GLOBAL ([\w.]+)", text) or re.search(
+        r"Unsupported (?:global|class):? ?([\w.]+)", text
+    )
     if found:
         return found.group(1)
     if "weights_only" in text or "Weights only load failed" in text:

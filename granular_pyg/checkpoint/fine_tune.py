@@ -110,9 +110,7 @@ def _frame_spacing(cfg: DictConfig) -> float:
     return read_trajectory(files[0]).frame_dt
 
 
-def with_initial_model(
-    cfg: DictConfig, overrides: Sequence[str] = ()
-) -> tuple[DictConfig, dict]:
+def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[DictConfig, dict]:
     """``cfg`` with the model of checkpoint ``cfg.init``, and the checkpoint.
 
     Returns:

@@ -85,9 +85,10 @@ def build_model(model: dict, source: str) -> LearnedSimulator:
         sim = instantiate(OmegaConf.create(model))
     except Exception as exc:  # a key the class does not take, a bad value
         cause = exc.__cause__ or exc
+        first = str(cause).splitlines()[0] if str(cause) else type(cause).__name__
         raise InputError(
-            f"{source}: its saved model config does not build a model ({str(cause).splitlines()[0]}); "
-            "was it written by a newer granular_pyg, or edited?"
+            f"{source}: its saved model config does not build a model ({first}); was it written "
+            "by a newer granular_pyg, or edited?"
         ) from None
     if not isinstance(sim, LearnedSimulator):
         raise InputError(f"{source}: its saved model config does not build a LearnedSimulator")

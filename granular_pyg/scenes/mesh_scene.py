@@ -132,7 +132,7 @@ def _check_binary_count(path: Path) -> None:
     size = path.stat().st_size
     with open(path, "rb") as handle:
         head = handle.read(84)
-    if size < 84 or head.lstrip().lower().startswith(b"solid") and b"\0" not in head[:80]:
+    if size < 84 or (head.lstrip().lower().startswith(b"solid") and b"\0" not in head[:80]):
         return
     count = int.from_bytes(head[80:84], "little")
     held = (size - 84) // 50
