@@ -81,16 +81,20 @@ def resolve_checkpoint(ckpt: str | Path, name: str = "ckpt") -> Path:
     return PRETRAINED_DIR / PRETRAINED[wanted]
 
 
+#: What torch's weights-only unpickler says when a file asks for more than tensors and plain
+#: data (a global, an object to build or a function to call), besides ``GLOBAL <name>``.
+_REFUSED_OBJECT = ("Can only create new object", "Can only build", "Trying to call reduce")
+
+
 def _unsafe_name(exc: BaseException) -> str | None:
     """The global a refused pickle names (torch's message: ``GLOBAL os.system was not an
-    allowed global``), or None when the failure is of another kind."""
+    allowed global``), ``"a Python object"`` for an object it refused to build, or None when
+    the failure is of another kind (a corrupt or truncated file)."""
     text = str(exc)
-    found = re.search(r"GLOBAL ([\w.]+)", text) or re.search(
-        r"Unsupported (?:global|class):? ?([\w.]+)", text
-    )
+    found = re.search(r"GLOBAL ([\w.]+)", text)
     if found:
         return found.group(1)
-    if "weights_only" in text or "Weights only load failed" in text:
+    if any(words in text for words in _REFUSED_OBJECT):
         return "a Python object"
     return None
 
@@ -122,8 +126,10 @@ def safe_load(path: str | Path, name: str = "ckpt", map_location: str = "cpu"):
                 "(a checkpoint holds only tensors and plain data); use a checkpoint from a "
                 "source you trust, or re-export it with python -m granular_pyg.pretrained.export"
             ) from None
+        why = next((line for line in reversed(str(exc).splitlines()) if "Unsupported" in line), "")
         raise InputError(
-            f"{name}: {path} is not a readable checkpoint ({exc}); was it truncated?"
+            f"{name}: {path} is not a readable checkpoint ({why or 'not a torch file'}); was it "
+            "truncated?"
         ) from None
     except OSError:
         raise
