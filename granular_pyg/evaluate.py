@@ -61,6 +61,11 @@ def evaluate(cfg: DictConfig) -> Path:
     data = config.get("data", {})
     root = cfg.root if cfg.root or cfg.sample else data.get("root")
     sample = cfg.sample if cfg.root or cfg.sample else data.get("sample")
+    if root is None and sample is None and not cfg.get("trajectories"):
+        raise InputError(
+            f"root: {cfg.ckpt} records no training data to evaluate on; pass root=<dataset "
+            "folder>, sample=hopper (or drum), or trajectories=[<file.h5>]"
+        )
     out = Path(cfg.out)
     rollouts = []
     selected = {

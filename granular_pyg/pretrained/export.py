@@ -61,6 +61,8 @@ def export(
     """
     if name not in PRETRAINED:
         raise InputError(f"name: expected one of {sorted(PRETRAINED)}, got {name!r}")
+    source = resolve_checkpoint(ckpt, "ckpt")
+    path, full = read_training_checkpoint(source, "ckpt")  # the input's errors first
     if out is None and folder is None:
         if not overwrite:
             raise InputError(
@@ -69,11 +71,9 @@ def export(
             )
         folder = PRETRAINED_DIR
     target = Path(out) if out is not None else Path(folder) / PRETRAINED[name]
-    source = resolve_checkpoint(ckpt, "ckpt")
     target = check_output(
         target, [source], overwrite, option="--out", overwrite_option="--overwrite"
     )
-    path, full = read_training_checkpoint(source, "ckpt")
     config = dict(full["config"])
     load_weights(build_model(config["model"], f"ckpt: {path}"), full, f"ckpt: {path}")
     trained_on = dict(config.get("data") or {})
