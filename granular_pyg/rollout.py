@@ -35,7 +35,7 @@ DTYPES = {"float32": torch.float32, "float64": torch.float64}
 def default_trajectory(config: dict, split: str = "test") -> Path:
     """The first trajectory of ``split`` of the data a training run used."""
     data = config.get("data") or {}
-    if not data.get("root") and not data.get("sample"):
+    if not isinstance(data, dict) or (not data.get("root") and not data.get("sample")):
         raise InputError(
             "trajectory: the checkpoint records no training data to take a default trajectory "
             "from; pass trajectory=<file.h5>"

@@ -168,3 +168,16 @@ def test_safe_load_names_a_folder_and_a_missing_file(tmp_path):
         safe_load(tmp_path)
     with pytest.raises(InputError, match=r"no checkpoint at .*pretrained:drum"):
         safe_load(tmp_path / "nope.ckpt")
+
+
+def test_a_malformed_model_card_is_one_warning_not_a_traceback(capsys):
+    from granular_pyg.inference import warn_outside_training
+    from granular_pyg.io import read_trajectory
+    from granular_pyg.samples import sample_files
+
+    truth = read_trajectory(sample_files("hopper", "test")[0])
+    card = {"training_data": {"scene_kinds": ["hopper"], "particle_radius_m": "x", "materials": 3}}
+    found = warn_outside_training({"model_card": card}, truth, "X.h5")
+    assert found == ["the checkpoint's model card is malformed, so its training ranges are not "
+                     "checked"]  # fmt: skip
+    assert capsys.readouterr().err.count("warning:") == 1

@@ -80,7 +80,15 @@ def _outside(value: float, bounds: list[float]) -> bool:
 
 def outside_training(card: dict | None, truth: Trajectory) -> list[str]:
     """One message per property of ``truth`` outside the card's training data, naming the
-    value and the range (an empty list when it is inside, or when there is no card)."""
+    value and the range (an empty list when it is inside, or when there is no card; one
+    message saying so when the card, a file's content, is malformed)."""
+    try:
+        return _outside_training(card, truth)
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError):
+        return ["the checkpoint's model card is malformed, so its training ranges are not checked"]
+
+
+def _outside_training(card: dict | None, truth: Trajectory) -> list[str]:
     data = (card or {}).get("training_data")
     if not data or truth.scene is None:
         return []
