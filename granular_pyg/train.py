@@ -85,7 +85,8 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     L.seed_everything(cfg.seed, workers=True)
     torch.set_num_threads(whole_number("threads", cfg.threads, minimum=1))
     if initial is not None:  # the model section is the checkpoint's: its own classes only
-        sim = build_model(OmegaConf.to_container(cfg.model, resolve=True), f"init: {cfg.init}")
+        model = OmegaConf.to_container(cfg.model, resolve=True)
+        sim = build_model(model, f"init: {cfg.init}", initial["state_dict"])
     else:
         sim = instantiate(cfg.model)
     if cfg.get("compile"):

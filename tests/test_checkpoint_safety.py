@@ -181,3 +181,13 @@ def test_a_malformed_model_card_is_one_warning_not_a_traceback(capsys):
     assert found == ["the checkpoint's model card is malformed, so its training ranges are not "
                      "checked"]  # fmt: skip
     assert capsys.readouterr().err.count("warning:") == 1
+
+
+def test_a_config_asking_for_a_huge_model_is_refused_before_anything_is_allocated(tmp_path):
+    """The model is first built on the meta device and compared with the weights: a hostile
+    config asking for 3e11 parameters is refused without allocating them."""
+    huge = hostile.shipped()
+    huge["config"]["model"]["latent"] = huge["config"]["model"]["processor"]["latent"] = 100_000
+    torch.save(huge, tmp_path / "huge.ckpt")
+    with pytest.raises(InputError, match=r"its weights do not fit the model its config describes"):
+        load_simulator(tmp_path / "huge.ckpt")

@@ -74,13 +74,33 @@ def check_model_config(model: dict, source: str) -> None:
     walk(model, "model")
 
 
-def build_model(model: dict, source: str) -> LearnedSimulator:
+def build_model(model: dict, source: str, state: dict | None = None) -> LearnedSimulator:
     """The (untrained) model of a checkpoint's model config, after :func:`check_model_config`.
 
+    Args:
+        model: the checkpoint's ``config["model"]``.
+        source: how to name the checkpoint in messages.
+        state: the checkpoint's ``state_dict``: the model is first built on the ``meta`` device
+            (no memory) and its tensors compared with these, so a config that does not fit its
+            weights (or asks for a huge model) is refused before anything is allocated.
+
     Raises:
-        InputError: naming ``source``: a refused config, or one the model class does not take.
+        InputError: naming ``source``: a refused config, one the model class does not take, or
+            one whose tensors do not fit ``state``.
     """
     check_model_config(model, source)
+    if state is not None:
+        try:
+            with torch.device("meta"):
+                meta = _instantiate(model, source)
+        except InputError:  # a class that needs real tensors to build: checked once built
+            meta = None
+        if meta is not None:
+            _check_fits(meta, state, source)
+    return _instantiate(model, source)
+
+
+def _instantiate(model: dict, source: str) -> LearnedSimulator:
     try:
         sim = instantiate(OmegaConf.create(model))
     except Exception as exc:  # a key the class does not take, a bad value
@@ -103,8 +123,16 @@ def load_weights(sim: LearnedSimulator, ckpt: dict, source: str) -> None:
         InputError: naming ``source``: the weights do not fit ``sim``'s architecture (missing or
             extra tensors, or tensors of another shape: the first one is named).
     """
+    _check_fits(sim, ckpt["state_dict"], source)
     prefix = "sim."
     state = {k[len(prefix) :]: v for k, v in ckpt["state_dict"].items() if k.startswith(prefix)}
+    sim.load_state_dict(state, strict=True)
+
+
+def _check_fits(sim: LearnedSimulator, state_dict: dict, source: str) -> None:
+    """Refuse ``state_dict``'s ``sim.*`` tensors when they are not ``sim``'s (names, shapes)."""
+    prefix = "sim."
+    state = {k[len(prefix) :]: v for k, v in state_dict.items() if k.startswith(prefix)}
     own = sim.state_dict()
     wrong = [
         f"{k}: {list(v.shape)} in the file, {list(own[k].shape)} for the config"
@@ -124,7 +152,6 @@ def load_weights(sim: LearnedSimulator, ckpt: dict, source: str) -> None:
             "config and weights come from different runs or the file was edited; use the "
             "checkpoint as training wrote it"
         )
-    sim.load_state_dict(state, strict=True)
 
 
 def load_simulator(
@@ -146,7 +173,7 @@ def load_simulator(
     """
     path, ckpt = read_training_checkpoint(path, name, map_location)
     config = ckpt["config"]
-    sim = build_model(config["model"], f"{name}: {path}")
+    sim = build_model(config["model"], f"{name}: {path}", ckpt["state_dict"])
     load_weights(sim, ckpt, f"{name}: {path}")
     config = dict(config) | {"model_card": ckpt.get("model_card") or {}}
     return sim.eval(), config
@@ -169,6 +196,3 @@ def to_plain(value):
     if isinstance(value, list | tuple):
         return type(value)(to_plain(v) for v in value)
     return value
-
-
-_ = torch  # torch is the file format's library (imported for type checkers)

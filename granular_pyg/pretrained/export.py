@@ -75,7 +75,8 @@ def export(
         target, [source], overwrite, option="--out", overwrite_option="--overwrite"
     )
     config = dict(full["config"])
-    load_weights(build_model(config["model"], f"ckpt: {path}"), full, f"ckpt: {path}")
+    built = build_model(config["model"], f"ckpt: {path}", full["state_dict"])
+    load_weights(built, full, f"ckpt: {path}")
     trained_on = dict(config.get("data") or {})
     config["data"] = trained_on | {"root": None, "sample": sample}
     slim = {
