@@ -196,9 +196,8 @@ def test_a_config_asking_for_a_huge_model_is_refused_before_anything_is_allocate
 def test_fine_tuning_a_shipped_model_writes_a_checkpoint_that_loads_weights_only(tmp_path):
     """``init=pretrained:hopper`` builds the model from the checkpoint's config (its own classes
     only, checked against its weights first) and the run's checkpoint is plain data."""
-    from tests.training.test_train import _steps_cfg
-
     from granular_pyg.train import train
+    from tests.training.test_train import _steps_cfg
 
     cfg = _steps_cfg(1, "init=pretrained:hopper", "trainer.fast_dev_run=false")
     train(cfg, tmp_path)
