@@ -25,7 +25,7 @@ from granular_pyg.checkpoint import (
     read_checkpoint,
     whole_multiple,
 )
-from granular_pyg.errors import InputError, NonFiniteError, flag, whole_number
+from granular_pyg.errors import InputError, NonFiniteError, flag, positive_number, whole_number
 from granular_pyg.io import Trajectory
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator, ParticleProps, WallGuard
@@ -221,6 +221,7 @@ def rollout_trajectory(
             steps finished before it (metadata ``interrupted_after_step``), or None.
     """
     wall_guard = flag("wall_guard", wall_guard)
+    skin = None if skin is None else positive_number("skin", skin)
     k, initial = initial_frames(sim, truth, start_frame)
     available = available_steps(sim, truth, start_frame)
     steps = available if steps is None else whole_number("steps", steps)

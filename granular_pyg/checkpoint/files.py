@@ -65,6 +65,11 @@ def resolve_checkpoint(ckpt: str | Path, name: str = "ckpt") -> Path:
         InputError: an unknown or missing pretrained name (listing the available ones).
     """
     text = str(ckpt)
+    if not text.strip():
+        raise InputError(
+            f"{name}: empty; pass a checkpoint file (<run>/checkpoints/last.ckpt) or "
+            + " / ".join(f"{PREFIX}{n}" for n in available_pretrained())
+        )
     if not text.startswith(PREFIX):
         return Path(ckpt)
     wanted = text[len(PREFIX) :]
