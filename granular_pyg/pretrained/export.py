@@ -28,6 +28,7 @@ from granular_pyg.checkpoint import (
 from granular_pyg.cli import reports_errors
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_path, check_output
+from granular_pyg.samples import SAMPLES_DIR
 
 #: Largest file the package ships (bytes).
 MAX_BYTES = 10 * 2**20
@@ -61,6 +62,9 @@ def export(
     """
     if name not in PRETRAINED:
         raise InputError(f"name: expected one of {sorted(PRETRAINED)}, got {name!r}")
+    samples = sorted(p.name for p in SAMPLES_DIR.iterdir() if (p / "manifest.json").is_file())
+    if sample not in samples:
+        raise InputError(f"--sample: expected a bundled sample, one of {samples}, got {sample!r}")
     source = resolve_checkpoint(ckpt, "ckpt")
     path, full = read_training_checkpoint(source, "ckpt")  # the input's errors first
     if out is None and folder is None:
