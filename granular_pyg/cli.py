@@ -48,8 +48,11 @@ EXIT_INPUT_ERROR = 2
 #: Exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
 EXIT_INTERRUPTED = 130
 #: Options whose default is true/false but which take other values too (Lightning's
-#: ``save_last`` takes ``link``).
-NOT_ONLY_BOOLEAN = frozenset({"checkpoint.save_last"})
+#: ``save_last`` takes ``link``, ``fast_dev_run`` a number of batches, ``deterministic`` ``warn``;
+#: Lightning checks them).
+NOT_ONLY_BOOLEAN = frozenset(
+    {"checkpoint.save_last", "trainer.fast_dev_run", "trainer.deterministic"}
+)
 #: Free space (bytes) a run folder's disk needs before a command starts (logs, checkpoints).
 RUN_FOLDER_MIN_FREE = 50 * 2**20
 
