@@ -55,3 +55,18 @@ def test_bad_requests_are_named(families, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([str(tmp_path / "empty")])
     assert capsys.readouterr().err.startswith("error: ")
+
+
+
+def test_a_broken_manifest_is_one_clear_error(tmp_path):
+    from granular_pyg.data import load_split
+    from granular_pyg.errors import InputError
+
+    (tmp_path / "manifest.json").write_text('{"splits": {"train": [')
+    with pytest.raises(InputError, match="not a readable JSON manifest"):
+        load_split(tmp_path, None, "train")
+    (tmp_path / "manifest.json").write_text('{"trajectories": []}')
+    with pytest.raises(InputError, match='no "splits" section'):
+        load_split(tmp_path, None, "train")
+    with pytest.raises(InputError, match="data.root"):
+        load_split(None, None, "train")

@@ -199,3 +199,4 @@ def test_turned_scene_turns_normals_and_motion():
         va = a.contacts(pts, 0.01, 0.5).velocity
         vb = b.contacts(pts @ q.T, 0.01, 0.5).velocity
         assert torch.allclose(vb.mean(0), va.mean(0) @ q.T, atol=1e-12)
+

@@ -63,6 +63,8 @@ def load_split(root: str | Path | None, sample: str | None, split: str) -> list[
         sample: ``"hopper"`` or ``"drum"`` for the bundled sample when ``root`` is None.
         split: ``"train"``, ``"valid"`` or ``"test"``.
     """
+    if root is None and sample is None:
+        raise InputError("data: set data.root (a dataset folder) or data.sample (hopper or drum)")
     folder = Path(root) if root is not None else SAMPLES_DIR / str(sample)
     manifest = folder / "manifest.json"
     if not manifest.is_file():
@@ -70,7 +72,20 @@ def load_split(root: str | Path | None, sample: str | None, split: str) -> list[
             f"{manifest}: no dataset manifest; make one with "
             "`python -m granular_pyg.generate scene=... out=<folder>` or set data.sample"
         )
-    splits = json.loads(manifest.read_text())["splits"]
+    try:
+        splits = json.loads(manifest.read_text())["splits"]
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(
+            f"{manifest}: not a readable JSON manifest ({exc}); make it again with `generate` "
+            "(it resumes) or `data.combine`"
+        ) from None
+    except (KeyError, TypeError):
+        raise InputError(
+            f"{manifest}: no \"splits\" section; a dataset manifest lists its trajectories "
+            "per split ({\"splits\": {\"train\": [...], ...}})"
+        ) from None
+    if not isinstance(splits, dict):
+        raise InputError(f"{manifest}: \"splits\" must map split names to file lists")
     if split not in splits:
         raise InputError(f"{manifest}: no split {split!r}; it has {sorted(splits)}")
     return [folder / name for name in splits[split]]

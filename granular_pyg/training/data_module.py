@@ -12,7 +12,7 @@ from torch_geometric.data import Batch, Data
 
 from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute_statistics
 from granular_pyg.data.windows import load_split
-from granular_pyg.errors import InputError, whole_number
+from granular_pyg.errors import InputError, finite_number, whole_number
 from granular_pyg.geometry import random_horizontal_frame
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives import Objective
@@ -185,7 +185,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.step = whole_number("data.frames_per_step", frames_per_step, minimum=1)
         self.batch_size = whole_number("data.batch_size (windows per batch)", batch_size, 1)
         self.num_workers = whole_number("data.num_workers", num_workers)
-        self.noise_std = float(noise_std)
+        self.noise_std = finite_number("data.noise_std", noise_std, minimum=0.0)
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
