@@ -21,7 +21,11 @@ CASES = [
     ("granular_pyg.bench", ["suite=rollout_speed", "suite.run.ckpts=[missing.ckpt]"], "missing"),
     ("granular_pyg.experiments.one_step_bias", ["ckpt=missing.ckpt", "files=[a.h5]"], "missing"),
     ("granular_pyg.experiments.one_step_bias", ["ckpt=missing.ckpt"], "files=..."),
-    ("granular_pyg.dem.convert", ["missing.dump", "--dem-dt", "2e-5", "--out", "x.h5"], "missing"),
+    (
+        "granular_pyg.dem_import.convert",
+        ["missing.dump", "--dem-dt", "2e-5", "--out", "x.h5"],
+        "missing",
+    ),
     ("granular_pyg.pretrained.export", ["missing.ckpt", "hopper"], "missing.ckpt"),
     ("granular_pyg.train", ["data.batch_size=0"], "data.batch_size"),
     ("granular_pyg.evaluate", ["ckpt=pretrained:hopper", "out=.", "steps=2.5"], "steps"),

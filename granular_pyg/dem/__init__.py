@@ -1,4 +1,5 @@
-"""LIGGGHTS: input rendering, running, dump parsing (users' own runs: ``dem.convert``)."""
+"""Running LIGGGHTS on a Scene: input rendering, running, dump parsing (users' own runs:
+:mod:`granular_pyg.dem_import`)."""
 
 from granular_pyg.dem.dump import DumpFrame, frames_to_arrays, read_dump
 from granular_pyg.dem.liggghts import DemRun, LiggghtsError, render_input, run_liggghts

@@ -253,7 +253,7 @@ def read_trajectory(path: str | os.PathLike) -> Trajectory:
     if not path.is_file():
         raise FileNotFoundError(
             f"{path}: no such trajectory file; check the path (write one with write_trajectory "
-            "or python -m granular_pyg.dem.convert)"
+            "or python -m granular_pyg.dem_import.convert)"
         )
     try:
         with h5py.File(path, "r") as h5:

@@ -4,13 +4,13 @@ other and expressed in recorded time.
 Sources, in order of precedence (a value is taken from the first that gives it, and every other
 source that gives it must agree, else :class:`~granular_pyg.errors.InputError` names both):
 
-1. ``walls.yaml`` (:mod:`granular_pyg.dem.walls_config`): motion and removal in recorded time,
-   the STL being the wall at recorded time 0;
-2. the run's input script or log (:mod:`granular_pyg.dem.liggghts_input`): which STL files the
-   meshes read (with their ``scale``/``move``/``rotate``), ``move/mesh`` motions and ``unfix``
+1. ``walls.yaml`` (:mod:`granular_pyg.dem_import.walls_config`): motion and removal in recorded
+   time, the STL being the wall at recorded time 0;
+2. the run's input script or log (:mod:`granular_pyg.dem_import.liggghts_input`): which STL files
+   the meshes read (with their ``scale``/``move``/``rotate``), ``move/mesh`` motions and ``unfix``
    removals, at DEM steps;
-3. the mesh dumps (:mod:`granular_pyg.dem.mesh_dump`): the pose of every wall at every dump step,
-   fitted to one constant motion, and the first dump step without a wall (its removal).
+3. the mesh dumps (:mod:`granular_pyg.dem_import.mesh_dump`): the pose of every wall at every dump
+   step, fitted to one constant motion, and the first dump step without a wall (its removal).
 
 A wall is identified by its STL file (the same file named by ``--stl``, ``walls.yaml`` and the
 script, matched by path, else by file name). Internally motions run on absolute time
@@ -31,17 +31,17 @@ from pathlib import Path
 
 import numpy as np
 
-from granular_pyg.dem.import_checks import check_wall_coordinates
-from granular_pyg.dem.liggghts_input import MeshFix, RunScript
-from granular_pyg.dem.mesh_dump import (
+from granular_pyg.dem_import.import_checks import check_wall_coordinates
+from granular_pyg.dem_import.liggghts_input import MeshFix, RunScript
+from granular_pyg.dem_import.mesh_dump import (
     MeshFrame,
     MeshRef,
     WallTrack,
     motion_from_track,
     track_walls,
 )
-from granular_pyg.dem.rigid_fit import IDENTITY, Pose, dump_tolerance, pose_deviation
-from granular_pyg.dem.walls_config import WallEntry, WallsConfig, unit_scale
+from granular_pyg.dem_import.rigid_fit import IDENTITY, Pose, dump_tolerance, pose_deviation
+from granular_pyg.dem_import.walls_config import WallEntry, WallsConfig, unit_scale
 from granular_pyg.errors import InputError
 from granular_pyg.scenes.mesh_scene import read_stl
 from granular_pyg.scenes.scene import Wall, WallMotion
@@ -171,7 +171,7 @@ def import_walls(
         first_timestep: TIMESTEP of the first particle frame (recorded time 0).
         config: the parsed ``walls.yaml``, or None.
         script: the parsed input script or log, or None.
-        mesh_frames: mesh dumps (:func:`granular_pyg.dem.mesh_dump.read_mesh_dumps`).
+        mesh_frames: mesh dumps (:func:`granular_pyg.dem_import.mesh_dump.read_mesh_dumps`).
         units: ``--units``: the STL files' units unless ``walls.yaml`` names them per wall.
         duration: the recorded time (s); motions from two sources are compared over it.
 

@@ -10,8 +10,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from granular_pyg.dem import convert
-from granular_pyg.dem.convert import load_stl_wall, trajectories_from_dumps, trajectory_from_dumps
+from granular_pyg.dem_import import convert
+from granular_pyg.dem_import.convert import (
+    load_stl_wall,
+    trajectories_from_dumps,
+    trajectory_from_dumps,
+)
 from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory
 from granular_pyg.scenes.scene import WallMotion
@@ -247,7 +251,7 @@ def test_python_dash_m_entry_point_runs(run, tmp_path):
     dump, stls = run
     out = tmp_path / "cli.h5"
     args = [str(dump), "--stl", *map(str, stls), "--dem-dt", "2e-5", "--out", str(out)]
-    command = [sys.executable, "-m", "granular_pyg.dem.convert", *args]
+    command = [sys.executable, "-m", "granular_pyg.dem_import.convert", *args]
     result = subprocess.run(command, capture_output=True, text=True, check=False)
     assert (result.returncode, read_trajectory(out).num_frames) == (0, 2), result.stderr
 

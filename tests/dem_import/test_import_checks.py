@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from granular_pyg.dem import convert
-from granular_pyg.dem.convert import trajectory_from_dumps
+from granular_pyg.dem_import import convert
+from granular_pyg.dem_import.convert import trajectory_from_dumps
 from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory
 from tests.dem.dump_text import falling, plate, write_dump, write_stl

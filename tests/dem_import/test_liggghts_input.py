@@ -10,10 +10,10 @@ import subprocess
 import numpy as np
 import pytest
 
-from granular_pyg.dem.convert import trajectory_from_dumps
 from granular_pyg.dem.liggghts import find_liggghts, render_input, write_ascii_stl
-from granular_pyg.dem.liggghts_input import read_run_script
-from granular_pyg.dem.mesh_dump import read_mesh_dumps
+from granular_pyg.dem_import.convert import trajectory_from_dumps
+from granular_pyg.dem_import.liggghts_input import read_run_script
+from granular_pyg.dem_import.mesh_dump import read_mesh_dumps
 from granular_pyg.errors import InputError
 from granular_pyg.scenes import Materials, make_drum, make_hopper
 from tests.dem.dump_text import falling, plate, write_dump, write_stl

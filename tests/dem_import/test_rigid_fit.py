@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from granular_pyg.dem.rigid_fit import (
+from granular_pyg.dem_import.rigid_fit import (
     MotionFitError,
     Pose,
     dump_tolerance,

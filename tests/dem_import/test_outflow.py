@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from granular_pyg.dem.convert import trajectory_from_dumps
+from granular_pyg.dem_import.convert import trajectory_from_dumps
 from granular_pyg.errors import InputError
 from tests.dem.dump_text import frame_text, write_dump
 

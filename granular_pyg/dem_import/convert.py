@@ -2,13 +2,15 @@
 
 Command line::
 
-    python -m granular_pyg.dem.convert DUMPS... --stl A.stl B.stl --dem-dt 2e-5 --out traj.h5
-    python -m granular_pyg.dem.convert post/fill.dump post/discharge.dump --input in.hopper \\
-        --mesh-dumps post/mesh --walls walls.yaml --out traj.h5
+    python -m granular_pyg.dem_import.convert DUMPS... --stl A.stl B.stl --dem-dt 2e-5 \\
+        --out traj.h5
+    python -m granular_pyg.dem_import.convert post/fill.dump post/discharge.dump \\
+        --input in.hopper --mesh-dumps post/mesh --walls walls.yaml --out traj.h5
 
 ``DUMPS`` are dump files and/or folders of dump files (``--pattern`` selects names in a folder),
-stitched on their TIMESTEPs (:mod:`granular_pyg.dem.stitch`). The dumps need the columns ``id x
-y z vx vy vz radius`` (e.g. ``dump d all custom 125 post/dump id type x y z vx vy vz radius``).
+stitched on their TIMESTEPs (:mod:`granular_pyg.dem_import.stitch`). The dumps need the
+columns ``id x y z vx vy vz radius`` (e.g. ``dump d all custom 125 post/dump id type x y z vx vy
+vz radius``).
 
 Frames that are not evenly spaced (a missing frame) are refused, naming the TIMESTEPs, unless
 ``--split-gaps`` is given: then each run of evenly spaced frames is written as its own
@@ -24,18 +26,18 @@ What a dump does not hold comes from (each value from the first source that give
 sources that give different values are refused, naming both):
 
 * the command line: ``--dem-dt``, ``--gravity``, ``--outflow-z``, ``--kind``, ``--units``;
-* ``--walls walls.yaml`` (:mod:`granular_pyg.dem.walls_config`): per STL its motion, removal
+* ``--walls walls.yaml`` (:mod:`granular_pyg.dem_import.walls_config`): per STL its motion, removal
   time and units, and the scene's kind, outflow height, gravity and materials;
-* ``--input in.run`` or ``--log log.liggghts`` (:mod:`granular_pyg.dem.liggghts_input`): time
+* ``--input in.run`` or ``--log log.liggghts`` (:mod:`granular_pyg.dem_import.liggghts_input`): time
   step, gravity, materials, density, which STL files the meshes read, their ``move/mesh``
   motions and ``unfix`` removals;
-* ``--mesh-dumps`` (:mod:`granular_pyg.dem.mesh_dump`): every wall's pose per dump step, fitted
-  to one constant rotation or translation, and the removal of a wall that vanishes from them.
+* ``--mesh-dumps`` (:mod:`granular_pyg.dem_import.mesh_dump`): every wall's pose per dump step,
+  fitted to one constant rotation or translation, and the removal of a wall that vanishes from them.
 
-Outflow as in the rollout (:mod:`granular_pyg.dem.outflow`): with ``outflow_z`` a particle
+Outflow as in the rollout (:mod:`granular_pyg.dem_import.outflow`): with ``outflow_z`` a particle
 whose centre is below it is NaN from that frame on. Sanity checks
-(:mod:`granular_pyg.dem.import_checks`) refuse non-finite atom values, walls in the wrong units,
-and a DEM time step that does not fit the particles' motion.
+(:mod:`granular_pyg.dem_import.import_checks`) refuse non-finite atom values, walls in the wrong
+units, and a DEM time step that does not fit the particles' motion.
 """
 
 from __future__ import annotations
@@ -55,17 +57,17 @@ import numpy as np
 
 from granular_pyg.cli import reports_errors
 from granular_pyg.dem.dump import DumpFrame, frames_to_arrays
-from granular_pyg.dem.import_checks import (
+from granular_pyg.dem_import.import_checks import (
     check_dem_dt,
     check_frames_finite,
     check_wall_units,
 )
-from granular_pyg.dem.liggghts_input import RunScript, read_run_script
-from granular_pyg.dem.mesh_dump import read_mesh_dumps
-from granular_pyg.dem.outflow import apply_outflow, check_no_reappearance, count_vanished
-from granular_pyg.dem.stitch import read_dump_runs, read_dumps
-from granular_pyg.dem.wall_import import ImportedWall, import_walls, load_stl_wall
-from granular_pyg.dem.walls_config import UNITS, WallsConfig, read_walls_config
+from granular_pyg.dem_import.liggghts_input import RunScript, read_run_script
+from granular_pyg.dem_import.mesh_dump import read_mesh_dumps
+from granular_pyg.dem_import.outflow import apply_outflow, check_no_reappearance, count_vanished
+from granular_pyg.dem_import.stitch import read_dump_runs, read_dumps
+from granular_pyg.dem_import.wall_import import ImportedWall, import_walls, load_stl_wall
+from granular_pyg.dem_import.walls_config import UNITS, WallsConfig, read_walls_config
 from granular_pyg.errors import InputError
 from granular_pyg.io import check_output
 from granular_pyg.io.trajectory import Trajectory, write_trajectory
@@ -80,7 +82,9 @@ from granular_pyg.scenes.scene import (
 
 __all__ = [
     "MIN_PART_FRAMES",
+    "POSITIONAL",
     "ROLLOUT_FRAMES",
+    "ConvertOptions",
     "DumpParts",
     "load_stl_wall",
     "main",
@@ -103,27 +107,12 @@ ROLLOUT_FRAMES = 6
 PathLike = str | os.PathLike
 
 
-def trajectory_from_dumps(
-    dumps: PathLike | Sequence[PathLike],
-    stl_files: Sequence[PathLike] = (),
-    dem_dt: float | None = None,
-    gravity: tuple[float, float, float] | None = None,
-    outflow_z: float | None = None,
-    on_truncated: str = "warn",
-    pattern: str = "*",
-    *,
-    walls: PathLike | WallsConfig | None = None,
-    input_script: PathLike | None = None,
-    log: PathLike | None = None,
-    mesh_dumps: Sequence[PathLike] = (),
-    mesh_pattern: str = "*",
-    kind: str | None = None,
-    units: str | None = None,
-) -> Trajectory:
-    """Build a Trajectory (with its Scene) from LIGGGHTS dumps and what describes the run.
+@dataclass(frozen=True)
+class ConvertOptions:
+    """What describes an imported run besides its dumps: the converter's options, in one place
+    for :func:`trajectory_from_dumps`, :func:`trajectories_from_dumps` and the command line.
 
-    Args:
-        dumps: ``dump custom`` files and/or folders of them, stitched on their TIMESTEPs.
+    Attributes:
         stl_files: STL wall files, named after their file stems sanitised to identifiers
             (``hopper-left.stl`` -> ``hopper_left``); static unless a source moves them.
         dem_dt: the run's DEM time step (s); times are ``(timestep - first) * dem_dt``. None to
@@ -134,7 +123,7 @@ def trajectory_from_dumps(
             a closed scene); becomes the scene's ``domain_lo`` z.
         on_truncated: ``"warn"`` drops a truncated last frame with a warning, ``"raise"`` fails.
         pattern: glob for dump file names in folders.
-        walls: a ``walls.yaml`` (path or parsed), see :mod:`granular_pyg.dem.walls_config`.
+        walls: a ``walls.yaml`` (path or parsed), see :mod:`granular_pyg.dem_import.walls_config`.
         input_script: the run's LIGGGHTS input script.
         log: the run's LIGGGHTS log (instead of ``input_script``).
         mesh_dumps: ``dump mesh/stl`` or ``mesh/vtk`` files and/or folders.
@@ -142,6 +131,53 @@ def trajectory_from_dumps(
         kind: the scene kind (``hopper``, ``drum``, ``other``), or None (walls.yaml, else
             ``other``).
         units: units of the STL files (``m``, ``cm``, ``mm``) unless walls.yaml names them.
+    """
+
+    stl_files: Sequence[PathLike] = ()
+    dem_dt: float | None = None
+    gravity: tuple[float, float, float] | None = None
+    outflow_z: float | None = None
+    on_truncated: str = "warn"
+    pattern: str = "*"
+    walls: PathLike | WallsConfig | None = None
+    input_script: PathLike | None = None
+    log: PathLike | None = None
+    mesh_dumps: Sequence[PathLike] = ()
+    mesh_pattern: str = "*"
+    kind: str | None = None
+    units: str | None = None
+
+    @classmethod
+    def of(
+        cls, options: ConvertOptions | None, args: tuple, keywords: dict[str, Any]
+    ) -> ConvertOptions:
+        """``options`` (or the defaults) with the positional ``args`` (in the order of
+        :data:`POSITIONAL`) and the ``keywords`` set."""
+        if len(args) > len(POSITIONAL):
+            raise TypeError(f"at most {len(POSITIONAL)} positional options: {POSITIONAL}")
+        given = dict(zip(POSITIONAL, args, strict=False))
+        if set(given) & set(keywords):
+            raise TypeError(f"given twice: {sorted(set(given) & set(keywords))}")
+        return dataclasses.replace(options or cls(), **given, **keywords)
+
+
+#: The options :func:`trajectory_from_dumps` also takes positionally, after the dumps.
+POSITIONAL = ("stl_files", "dem_dt", "gravity", "outflow_z", "on_truncated", "pattern")
+
+
+def trajectory_from_dumps(
+    dumps: PathLike | Sequence[PathLike],
+    *args: Any,
+    options: ConvertOptions | None = None,
+    **keywords: Any,
+) -> Trajectory:
+    """Build a Trajectory (with its Scene) from LIGGGHTS dumps and what describes the run.
+
+    Args:
+        dumps: ``dump custom`` files and/or folders of them, stitched on their TIMESTEPs.
+        *args, options, **keywords: the :class:`ConvertOptions`: ``options`` with any given
+            positionally (``stl_files, dem_dt, gravity, outflow_z, on_truncated, pattern``) or
+            by keyword set.
 
     Returns:
         The trajectory. Its Scene is named walls.yaml's ``name``, else the kind if it is
@@ -159,21 +195,10 @@ def trajectory_from_dumps(
             :func:`trajectories_from_dumps` for one trajectory per evenly spaced run), or a
             failed sanity check; the message names the file, value and fix.
     """
-    found = _read_sources(dem_dt, walls, input_script, log)
-    frames = read_dumps(dumps, on_truncated=on_truncated, pattern=pattern)
-    (traj,) = _trajectories(
-        found,
-        [frames],
-        frames,
-        dumps=dumps,
-        stl_files=stl_files,
-        gravity=gravity,
-        outflow_z=outflow_z,
-        mesh_dumps=mesh_dumps,
-        mesh_pattern=mesh_pattern,
-        kind=kind,
-        units=units,
-    )
+    opts = ConvertOptions.of(options, args, keywords)
+    found = _read_sources(opts)
+    frames = read_dumps(dumps, on_truncated=opts.on_truncated, pattern=opts.pattern)
+    (traj,) = _trajectories(found, [frames], frames, dumps, opts)
     return traj
 
 
@@ -193,28 +218,18 @@ class DumpParts:
 
 def trajectories_from_dumps(
     dumps: PathLike | Sequence[PathLike],
-    stl_files: Sequence[PathLike] = (),
-    dem_dt: float | None = None,
-    gravity: tuple[float, float, float] | None = None,
-    outflow_z: float | None = None,
-    on_truncated: str = "warn",
-    pattern: str = "*",
-    *,
-    walls: PathLike | WallsConfig | None = None,
-    input_script: PathLike | None = None,
-    log: PathLike | None = None,
-    mesh_dumps: Sequence[PathLike] = (),
-    mesh_pattern: str = "*",
-    kind: str | None = None,
-    units: str | None = None,
+    *args: Any,
+    options: ConvertOptions | None = None,
     min_frames: int = MIN_PART_FRAMES,
     check_parts: Callable[[int], None] | None = None,
+    **keywords: Any,
 ) -> DumpParts:
     """One Trajectory per run of evenly spaced frames (``convert --split-gaps``), where
     :func:`trajectory_from_dumps` refuses a gap.
 
-    The stitched frames are cut into runs (:func:`granular_pyg.dem.stitch.evenly_spaced_runs`);
-    each run of at least ``min_frames`` frames becomes a trajectory built as
+    The stitched frames are cut into runs
+    (:func:`granular_pyg.dem_import.stitch.evenly_spaced_runs`); each run of at least
+    ``min_frames`` frames becomes a trajectory built as
     :func:`trajectory_from_dumps` builds the whole: its times start at 0 at the part's first
     frame (the converter always counts recorded time from the first frame converted; the
     part's first TIMESTEP is its metadata's ``first_timestep``), its ``frame_dt`` is the part's
@@ -228,9 +243,7 @@ def trajectories_from_dumps(
     periods by a part's start is refused (a WallMotion starts its sine at its start time).
 
     Args:
-        dumps, stl_files, dem_dt, gravity, outflow_z, on_truncated, pattern, walls,
-        input_script, log, mesh_dumps, mesh_pattern, kind, units: as for
-            :func:`trajectory_from_dumps`.
+        dumps, *args, options, **keywords: as for :func:`trajectory_from_dumps`.
         min_frames: the fewest frames of a part; shorter runs are skipped (reported in
             ``skipped``).
         check_parts: called with the number of parts once the dumps are read and before any
@@ -246,8 +259,9 @@ def trajectories_from_dumps(
         InputError: as :func:`trajectory_from_dumps` (except for the gaps), or no run of
             ``min_frames`` frames.
     """
-    found = _read_sources(dem_dt, walls, input_script, log)
-    runs = read_dump_runs(dumps, on_truncated=on_truncated, pattern=pattern)
+    opts = ConvertOptions.of(options, args, keywords)
+    found = _read_sources(opts)
+    runs = read_dump_runs(dumps, on_truncated=opts.on_truncated, pattern=opts.pattern)
     kept = [r for r in runs if len(r) >= min_frames]
     skipped = [(r[0].timestep, r[-1].timestep, len(r)) for r in runs if len(r) < min_frames]
     if not kept:
@@ -258,20 +272,7 @@ def trajectories_from_dumps(
         )
     if check_parts is not None:
         check_parts(len(kept))
-    parts = _trajectories(
-        found,
-        kept,
-        [f for r in runs for f in r],
-        dumps=dumps,
-        stl_files=stl_files,
-        gravity=gravity,
-        outflow_z=outflow_z,
-        mesh_dumps=mesh_dumps,
-        mesh_pattern=mesh_pattern,
-        kind=kind,
-        units=units,
-        split=True,
-    )
+    parts = _trajectories(found, kept, [f for r in runs for f in r], dumps, opts, split=True)
     return DumpParts(parts, skipped)
 
 
@@ -286,12 +287,8 @@ class _Sources:
     sources: dict[str, str]
 
 
-def _read_sources(
-    dem_dt: float | None,
-    walls: PathLike | WallsConfig | None,
-    input_script: PathLike | None,
-    log: PathLike | None,
-) -> _Sources:
+def _read_sources(opts: ConvertOptions) -> _Sources:
+    dem_dt, walls, input_script, log = opts.dem_dt, opts.walls, opts.input_script, opts.log
     if input_script is not None and log is not None:
         raise InputError("pass either the input script (--input) or the log (--log), not both")
     config = walls if isinstance(walls, WallsConfig) or walls is None else read_walls_config(walls)
@@ -318,19 +315,15 @@ def _trajectories(
     found: _Sources,
     runs: list[list[DumpFrame]],
     all_frames: list[DumpFrame],
-    *,
     dumps: PathLike | Sequence[PathLike],
-    stl_files: Sequence[PathLike],
-    gravity: tuple[float, float, float] | None,
-    outflow_z: float | None,
-    mesh_dumps: Sequence[PathLike],
-    mesh_pattern: str,
-    kind: str | None,
-    units: str | None,
+    opts: ConvertOptions,
     split: bool = False,
 ) -> list[Trajectory]:
     """One trajectory per run of evenly spaced frames; ``all_frames`` are every frame read
     (the runs and any skipped ones), for the walls' time origin and the particle types."""
+    stl_files, gravity, outflow_z = opts.stl_files, opts.gravity, opts.outflow_z
+    mesh_dumps, mesh_pattern = opts.mesh_dumps, opts.mesh_pattern
+    kind, units = opts.kind, opts.units
     config, script, dt = found.config, found.script, found.dt
     sources = dict(found.sources)
     check_frames_finite(all_frames)
@@ -621,7 +614,7 @@ def main(argv: Sequence[str] | None = None) -> Path | list[Path]:
     """Command line: convert dumps + walls into one HDF5 trajectory (with ``--split-gaps``,
     one per run of evenly spaced frames); see the module doc. Returns the file(s) written."""
     parser = argparse.ArgumentParser(
-        prog="python -m granular_pyg.dem.convert",
+        prog="python -m granular_pyg.dem_import.convert",
         description="Convert LIGGGHTS dump custom files and STL walls into a trajectory file.",
     )
     parser.add_argument(
@@ -671,25 +664,27 @@ def main(argv: Sequence[str] | None = None) -> Path | list[Path]:
         script_path,
         *args.mesh_dumps,
     ]
-    common: dict[str, Any] = {
-        "gravity": None if args.gravity is None else tuple(args.gravity),
-        "outflow_z": args.outflow_z,
-        "on_truncated": args.on_truncated,
-        "pattern": args.pattern,
-        "walls": config,
-        "input_script": args.input,
-        "log": args.log,
-        "mesh_dumps": args.mesh_dumps,
-        "mesh_pattern": args.mesh_pattern,
-        "kind": args.kind,
-        "units": args.units,
-    }
+    options = ConvertOptions(
+        stl_files=args.stl,
+        dem_dt=args.dem_dt,
+        gravity=None if args.gravity is None else tuple(args.gravity),
+        outflow_z=args.outflow_z,
+        on_truncated=args.on_truncated,
+        pattern=args.pattern,
+        walls=config,
+        input_script=args.input,
+        log=args.log,
+        mesh_dumps=args.mesh_dumps,
+        mesh_pattern=args.mesh_pattern,
+        kind=args.kind,
+        units=args.units,
+    )
     if args.split_gaps:
-        return _split_main(args, inputs, common)
+        return _split_main(args, inputs, options)
     out = check_output(
         args.out, inputs, args.overwrite, option="--out", overwrite_option="--overwrite"
     )
-    traj = trajectory_from_dumps(args.dumps, args.stl, args.dem_dt, **common)
+    traj = trajectory_from_dumps(args.dumps, options=options)
     write_trajectory(traj, out)
     walls = ", ".join(_describe(w) for w in traj.scene.walls)
     print(
@@ -707,7 +702,7 @@ def part_path(out: PathLike, k: int) -> Path:
     return out.with_name(f"{out.stem}_part{k}{out.suffix}")
 
 
-def _split_main(args: argparse.Namespace, inputs: list, common: dict[str, Any]) -> list[Path]:
+def _split_main(args: argparse.Namespace, inputs: list, options: ConvertOptions) -> list[Path]:
     """``--split-gaps``: every part's file checked (none an input, none existing without
     --overwrite) once the dumps are read and before any part is built; each written
     atomically."""
@@ -721,9 +716,7 @@ def _split_main(args: argparse.Namespace, inputs: list, common: dict[str, Any]) 
             for k in range(count)
         ]
 
-    result = trajectories_from_dumps(
-        args.dumps, args.stl, args.dem_dt, **common, check_parts=check_parts
-    )
+    result = trajectories_from_dumps(args.dumps, options=options, check_parts=check_parts)
     if result.skipped:
         runs = ", ".join(_timesteps(*run) for run in result.skipped)
         print(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from granular_pyg.dem.convert import trajectory_from_dumps
-from granular_pyg.dem.mesh_dump import (
+from granular_pyg.dem_import.convert import trajectory_from_dumps
+from granular_pyg.dem_import.mesh_dump import (
     MeshRef,
     motion_from_track,
     read_mesh_dumps,

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from granular_pyg.dem.convert import main as convert_main
-from granular_pyg.dem.convert import trajectory_from_dumps
+from granular_pyg.dem_import.convert import main as convert_main
+from granular_pyg.dem_import.convert import trajectory_from_dumps
 from granular_pyg.errors import InputError
 from granular_pyg.scenes.mesh_scene import read_stl
 from tests.dem.dump_text import falling, plate, write_dump, write_stl

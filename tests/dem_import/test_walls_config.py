@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from granular_pyg.dem.walls_config import read_walls_config
+from granular_pyg.dem_import.walls_config import read_walls_config
 from granular_pyg.scenes import WallMotion
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "data.md"

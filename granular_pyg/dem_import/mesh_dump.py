@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from granular_pyg.dem.rigid_fit import (
+from granular_pyg.dem_import.rigid_fit import (
     MotionFitError,
     Pose,
     dump_tolerance,
@@ -32,7 +32,7 @@ from granular_pyg.dem.rigid_fit import (
     fit_pose,
     pose_deviation,
 )
-from granular_pyg.dem.stitch import dump_files
+from granular_pyg.dem_import.stitch import dump_files
 from granular_pyg.errors import InputError
 from granular_pyg.scenes.scene import WallMotion
 
@@ -115,7 +115,7 @@ def read_mesh_dumps(paths: Sequence[str | os.PathLike], pattern: str = "*") -> l
     Returns:
         The frames sorted by TIMESTEP; a step written twice (an old dump's last file and a
         re-created dump's first, or as .stl and .vtk) is kept once if the same within
-        :func:`~granular_pyg.dem.rigid_fit.dump_tolerance`, else both are kept, the one with
+        :func:`~granular_pyg.dem_import.rigid_fit.dump_tolerance`, else both are kept, the one with
         more triangles first.
 
     Raises:

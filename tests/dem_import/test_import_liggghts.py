@@ -9,12 +9,12 @@ import subprocess
 import numpy as np
 import pytest
 
-from granular_pyg.dem import convert
-from granular_pyg.dem.convert import trajectory_from_dumps
 from granular_pyg.dem.dump import frames_to_arrays
 from granular_pyg.dem.liggghts import find_liggghts, render_input, write_ascii_stl
-from granular_pyg.dem.mesh_dump import read_mesh_dumps
-from granular_pyg.dem.stitch import read_dumps
+from granular_pyg.dem_import import convert
+from granular_pyg.dem_import.convert import trajectory_from_dumps
+from granular_pyg.dem_import.mesh_dump import read_mesh_dumps
+from granular_pyg.dem_import.stitch import read_dumps
 from granular_pyg.io import read_trajectory
 from granular_pyg.scenes import make_drum, make_hopper
 

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from granular_pyg.dem.stitch import evenly_spaced_runs, read_dump_runs, read_dumps
+from granular_pyg.dem_import.stitch import evenly_spaced_runs, read_dump_runs, read_dumps
 from granular_pyg.errors import InputError
 from tests.dem.dump_text import falling, write_dump
 
