@@ -42,6 +42,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_write
 from granular_pyg.progress import show_progress
 from granular_pyg.scenes import ParticleSpec, Scene, Wall
+from granular_pyg.scenes.wall_angles import check_wall_for_liggghts
 
 __all__ = [
     "DemRun",
@@ -56,8 +57,6 @@ __all__ = [
 INSTALL_HINT = "apt-get install -y --no-install-recommends liggghts"
 #: Environment variable that names the LIGGGHTS binary (a path or a name on PATH).
 LIGGGHTS_ENV = "GRANULAR_PYG_LIGGGHTS"
-#: LIGGGHTS rejects triangles with an angle at or below this (degrees).
-MIN_ANGLE_DEG = 0.256
 DUMP_NAME = "traj.dump"
 #: Particles enter the fill region moving along gravity at this speed (m/s), so that each
 #: batch clears the region before the next.
@@ -120,33 +119,6 @@ def prime_seeds(seed: int, count: int = 3) -> list[int]:
         if n not in primes:
             primes.append(n)
     return primes
-
-
-def _min_angles_deg(triangles: np.ndarray) -> np.ndarray:
-    """``[F]`` smallest interior angle of each triangle (deg); 0 for degenerate ones."""
-    angles = []
-    for i in range(3):
-        a, b, c = triangles[:, i], triangles[:, (i + 1) % 3], triangles[:, (i + 2) % 3]
-        u, v = b - a, c - a
-        nu, nv = np.linalg.norm(u, axis=1), np.linalg.norm(v, axis=1)
-        cos = np.einsum("ij,ij->i", u, v) / np.maximum(nu * nv, np.finfo(float).tiny)
-        ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-        angles.append(np.where((nu > 0) & (nv > 0), ang, 0.0))
-    return np.min(angles, axis=0)
-
-
-def check_wall_for_liggghts(wall: Wall) -> None:
-    """Raise :class:`InputError` (before LIGGGHTS starts) if a triangle would fail its angle
-    check (every angle must exceed 0.256 deg), naming the wall, triangle and angle."""
-    angles = _min_angles_deg(wall.triangles)
-    bad = np.flatnonzero(angles <= MIN_ANGLE_DEG)
-    if bad.size:
-        i = int(bad[0])
-        raise InputError(
-            f"wall {wall.name}: {bad.size} triangle(s) have an angle <= {MIN_ANGLE_DEG} deg, "
-            f"which LIGGGHTS rejects (first: triangle {i}, vertices {wall.faces[i].tolist()}, "
-            f"angle {angles[i]:.3g} deg); remesh the wall or merge the sliver triangles"
-        )
 
 
 def _check_scene(scene: Scene) -> None:

@@ -39,9 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
-from granular_pyg.dem.liggghts import check_wall_for_liggghts
 from granular_pyg.scenes.mesh_scene import MESH_DIR
 from granular_pyg.scenes.scene import Wall
+from granular_pyg.scenes.wall_angles import check_wall_for_liggghts
 
 __all__ = ["MESH_DIR", "example_meshes", "main", "write_binary_stl"]
 
