@@ -56,7 +56,7 @@ from torch import nn
 from torch_geometric.data import Batch, Data
 
 from granular_pyg.errors import InputError, NonFiniteError, check_coordinates_fit, check_tensor
-from granular_pyg.geometry import canonical_normals
+from granular_pyg.geometry import canonical_normals, horizontally_isotropic
 from granular_pyg.nn import (
     EncodeProcessDecode,
     HorizontalEquivariantNetwork,
@@ -268,7 +268,9 @@ class LearnedSimulator(nn.Module):
             h = self.history
             node_in = h + h * (h + 1) // 2 + 2 + NUM_TYPES + extra_in
             edge_in = 4 + int(self.contact_feature)
-            self.model = HorizontalEquivariantNetwork(node_in, h + 1, edge_in, processor, mlp_layers)
+            self.model = HorizontalEquivariantNetwork(
+                node_in, h + 1, edge_in, processor, mlp_layers
+            )
         else:
             node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES + extra_in
             edge_in = NUM_EDGE_FEATURES + int(self.contact_feature)
@@ -300,10 +302,8 @@ class LearnedSimulator(nn.Module):
         An equivariant model keeps them isotropic in the horizontal plane (what a turn about
         gravity or a mirror leaves unchanged): the horizontal means become 0 and the two
         horizontal stds their root mean square with the means, ``sqrt(mean_xy(std^2 +
-        mean^2))`` (:func:`~granular_pyg.data.statistics.horizontally_isotropic`)."""
+        mean^2))`` (:func:`~granular_pyg.geometry.horizontally_isotropic`)."""
         if self.equivariant:
-            from granular_pyg.data.statistics import horizontally_isotropic
-
             vel_mean, vel_std = horizontally_isotropic(vel_mean, vel_std)
             acc_mean, acc_std = horizontally_isotropic(acc_mean, acc_std)
         for name, value in (
@@ -505,7 +505,7 @@ class LearnedSimulator(nn.Module):
         props: ParticleProps | None = None,
         frame: torch.Tensor | None = None,
     ) -> Data:
-        """Scalars and horizontal vectors for :class:`~granular_pyg.nn.HorizontalEquivariantNetwork`.
+        """Scalars and horizontal vectors for the equivariant network.
 
         Node scalars ``x [N + W, H + H (H + 1) / 2 + 2 + 2 + P]``: the vertical velocities, the
         Gram matrix of the horizontal velocities (upper triangle), two normal invariants (V1:
@@ -548,7 +548,12 @@ class LearnedSimulator(nn.Module):
             along = torch.zeros_like(along)
         length = torch.linalg.vector_norm(disp, dim=1, keepdim=True)
         edge_attr = torch.cat(
-            [torch.linalg.vector_norm(disp[:, :2], dim=1, keepdim=True), disp[:, 2:], length, along],
+            [
+                torch.linalg.vector_norm(disp[:, :2], dim=1, keepdim=True),
+                disp[:, 2:],
+                length,
+                along,
+            ],
             dim=1,
         )
         if self.contact_feature:

@@ -57,7 +57,6 @@ def test_bad_requests_are_named(families, tmp_path, capsys):
     assert capsys.readouterr().err.startswith("error: ")
 
 
-
 def test_a_broken_manifest_is_one_clear_error(tmp_path):
     from granular_pyg.data import load_split
     from granular_pyg.errors import InputError
@@ -68,5 +67,5 @@ def test_a_broken_manifest_is_one_clear_error(tmp_path):
     (tmp_path / "manifest.json").write_text('{"trajectories": []}')
     with pytest.raises(InputError, match='no "splits" section'):
         load_split(tmp_path, None, "train")
-    with pytest.raises(InputError, match="data.root"):
+    with pytest.raises(InputError, match=r"data\.root"):
         load_split(None, None, "train")

@@ -7,8 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from granular_pyg.data.statistics import horizontally_isotropic
-from granular_pyg.geometry import horizontal_frame, random_horizontal_frame, surface_patches
+from granular_pyg.geometry import (
+    horizontal_frame,
+    horizontally_isotropic,
+    random_horizontal_frame,
+    surface_patches,
+)
 from granular_pyg.io import read_trajectory
 from granular_pyg.nn import HorizontalEquivariantProcessor, Processor
 from granular_pyg.samples import sample_files
@@ -193,10 +197,11 @@ def test_turned_scene_turns_normals_and_motion():
         a, b = WallSet(drum), WallSet(moved)
         assert torch.allclose(b.normals[0], a.normals[0] @ q.T, atol=1e-12)
         axis = np.asarray(moved.walls[0].motion.axis)
-        np.testing.assert_allclose(axis, np.linalg.det(q.numpy()) * q.numpy() @ (0, 1, 0), atol=1e-12)
+        np.testing.assert_allclose(
+            axis, np.linalg.det(q.numpy()) * q.numpy() @ (0, 1, 0), atol=1e-12
+        )
         # the wall velocity at a mirrored point is the mirrored velocity
         pts = torch.tensor([[0.0, 0.0, -0.045]], dtype=torch.float64)
         va = a.contacts(pts, 0.01, 0.5).velocity
         vb = b.contacts(pts @ q.T, 0.01, 0.5).velocity
         assert torch.allclose(vb.mean(0), va.mean(0) @ q.T, atol=1e-12)
-

@@ -117,7 +117,9 @@ def _targets(ckpt: str, name: str, row: dict, base: dict) -> list[Target]:
         out.append(Target(f"{ckpt} {name}: |angle error change|, deg", change, "<=", 1.0))
     if base["emd_mean"] > 0:
         out.append(
-            Target(f"{ckpt} {name}: EMD / original's", row["emd_mean"] / base["emd_mean"], "<=", 1.5)
+            Target(
+                f"{ckpt} {name}: EMD / original's", row["emd_mean"] / base["emd_mean"], "<=", 1.5
+            )
         )
     return out
 

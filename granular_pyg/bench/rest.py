@@ -80,7 +80,12 @@ def run(
             results[f"{label}/{key}"] = float(row[key])
         targets += [
             Target(f"{label}: mean drift, mm", row["mean_drift_mm"], "<=", 1e3 * MEAN_DRIFT_M),
-            Target(f"{label}: centre of mass, mm", row["centre_of_mass_mm"], "<=", 1e3 * CENTRE_OF_MASS_M),
+            Target(
+                f"{label}: centre of mass, mm",
+                row["centre_of_mass_mm"],
+                "<=",
+                1e3 * CENTRE_OF_MASS_M,
+            ),
             Target(f"{label}: leaked or left", float((leaked_rows | ~present).sum()), "<=", 0.0),
         ]
     fig, ax = plt.subplots(figsize=(6, 3.2))

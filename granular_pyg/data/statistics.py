@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from granular_pyg.geometry import horizontally_isotropic
 from granular_pyg.io import Trajectory
 
 __all__ = ["NormalizationStats", "compute_statistics", "horizontally_isotropic"]
@@ -20,22 +21,6 @@ class NormalizationStats:
     vel_std: np.ndarray
     acc_mean: np.ndarray
     acc_std: np.ndarray
-
-
-def horizontally_isotropic(mean, std) -> tuple[np.ndarray, np.ndarray]:
-    """Per-component statistics ``mean, std [3]`` made invariant under turns about the z axis
-    and vertical mirrors: the statistics of the same data seen in every horizontal direction.
-    The horizontal means become 0 and both horizontal stds ``sqrt(mean_xy(std^2 + mean^2))``
-    (the second moment is kept); z is unchanged.
-
-    Returns:
-        ``(mean [3], std [3])`` float64 arrays.
-    """
-    mean = np.asarray(mean, np.float64).reshape(3).copy()
-    std = np.asarray(std, np.float64).reshape(3).copy()
-    second = float(np.mean(std[:2] ** 2 + mean[:2] ** 2))
-    mean[:2], std[:2] = 0.0, math.sqrt(second)
-    return mean, std
 
 
 def compute_statistics(

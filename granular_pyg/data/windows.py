@@ -81,11 +81,11 @@ def load_split(root: str | Path | None, sample: str | None, split: str) -> list[
         ) from None
     except (KeyError, TypeError):
         raise InputError(
-            f"{manifest}: no \"splits\" section; a dataset manifest lists its trajectories "
-            "per split ({\"splits\": {\"train\": [...], ...}})"
+            f'{manifest}: no "splits" section; a dataset manifest lists its trajectories '
+            'per split ({"splits": {"train": [...], ...}})'
         ) from None
     if not isinstance(splits, dict):
-        raise InputError(f"{manifest}: \"splits\" must map split names to file lists")
+        raise InputError(f'{manifest}: "splits" must map split names to file lists')
     if split not in splits:
         raise InputError(f"{manifest}: no split {split!r}; it has {sorted(splits)}")
     return [folder / name for name in splits[split]]

@@ -168,8 +168,14 @@ def discharge_figure(ev: PairEvaluation, title: str = ""):
     if np.isfinite(beverloo) and beverloo > 0 and np.isfinite(start):
         m0 = float(np.interp(start, t, s["discharged_mass_truth"]))
         t1 = start + (bed - m0) / beverloo
-        ax.plot([start, t1], [m0, bed], color="tab:blue", lw=1.0, ls=":",
-                label=f"Beverloo {beverloo:.3g} kg/s")
+        ax.plot(
+            [start, t1],
+            [m0, bed],
+            color="tab:blue",
+            lw=1.0,
+            ls=":",
+            label=f"Beverloo {beverloo:.3g} kg/s",
+        )
     truth_rate = ev.scalars.get("discharge_rate_truth", float("nan"))
     pred_rate = ev.scalars.get("discharge_rate_pred", float("nan"))
     ax.text(

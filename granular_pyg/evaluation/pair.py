@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from granular_pyg import metrics
-from granular_pyg.metrics import beverloo, flow
 from granular_pyg.errors import InputError
 from granular_pyg.inference import matching_frames
 from granular_pyg.io import Trajectory
+from granular_pyg.metrics import beverloo, flow
 from granular_pyg.scenes import Scene, WallSet
 
 __all__ = ["PairEvaluation", "evaluate_pair"]
@@ -188,9 +188,7 @@ def evaluate_pair(
         "entropy_truth": ent_t,
         "entropy_pred": ent_p,
     }
-    observable = _scene_observable(
-        truth, t_pos, p_pos, pred.times, scalars, series, skipped, first
-    )
+    observable = _scene_observable(truth, t_pos, p_pos, pred.times, scalars, series, skipped, first)
     if skipped:
         warnings.warn(
             f"evaluate_pair: scene {scene.name!r} (kind {scene.kind!r}): skipped "

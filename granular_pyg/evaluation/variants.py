@@ -91,7 +91,7 @@ def held_still(traj: Trajectory, duration: float, frame: int = 0) -> Trajectory:
     keep = np.isfinite(pos).all(1)
     if not keep.any():
         raise InputError(f"frame {frame}: no particle is present")
-    count = int(round(duration / traj.frame_dt)) + 1
+    count = round(duration / traj.frame_dt) + 1
     walls = [
         dataclasses.replace(w, motion=WallMotion(), removal_time=None) for w in traj.scene.walls
     ]

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
-__all__ = ["horizontal_frame", "random_horizontal_frame"]
+__all__ = ["horizontal_frame", "horizontally_isotropic", "random_horizontal_frame"]
 
 
 def horizontal_frame(angle_deg: float, mirror: bool = False) -> torch.Tensor:
@@ -29,3 +30,19 @@ def random_horizontal_frame(generator: torch.Generator) -> torch.Tensor:
     drawn from ``generator`` (two draws): ``[3, 3]`` float64."""
     u = torch.rand(2, generator=generator, dtype=torch.float64)
     return horizontal_frame(360.0 * float(u[0]), bool(u[1] < 0.5))
+
+
+def horizontally_isotropic(mean, std) -> tuple[np.ndarray, np.ndarray]:
+    """Per-component statistics ``mean, std [3]`` made invariant under turns about the z axis
+    and vertical mirrors: the statistics of the same data seen in every horizontal direction.
+    The horizontal means become 0 and both horizontal stds ``sqrt(mean_xy(std^2 + mean^2))``
+    (the second moment is kept); z is unchanged.
+
+    Returns:
+        ``(mean [3], std [3])`` float64 arrays.
+    """
+    mean = np.asarray(mean, np.float64).reshape(3).copy()
+    std = np.asarray(std, np.float64).reshape(3).copy()
+    second = float(np.mean(std[:2] ** 2 + mean[:2] ** 2))
+    mean[:2], std[:2] = 0.0, math.sqrt(second)
+    return mean, std

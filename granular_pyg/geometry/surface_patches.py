@@ -61,7 +61,9 @@ def surface_patches(
         ``[F]`` int64 patch ids ``0..P-1``, numbered by first triangle.
     """
     if not 0 <= max_angle_deg < 90:
-        raise InputError(f"max_angle_deg: expected an angle in [0, 90) degrees, got {max_angle_deg}")
+        raise InputError(
+            f"max_angle_deg: expected an angle in [0, 90) degrees, got {max_angle_deg}"
+        )
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
     num = len(faces)

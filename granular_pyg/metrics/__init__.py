@@ -19,23 +19,23 @@ from granular_pyg.metrics.flow import (
 )
 from granular_pyg.metrics.leaks import leaked_mask, leaked_particles
 from granular_pyg.metrics.physics import (
+    across_drum_axis,
     centre_of_mass,
     centre_of_mass_swing,
     crushed_particles,
     discharged_fraction,
-    across_drum_axis,
     drum_axis,
     dynamic_angle_of_repose,
     outlet_height,
 )
 
 __all__ = [
+    "across_drum_axis",
     "centre_of_mass",
     "centre_of_mass_swing",
     "crushed_particles",
     "discharge_rate",
     "discharged_fraction",
-    "across_drum_axis",
     "drum_axis",
     "dynamic_angle_of_repose",
     "emd",

@@ -167,9 +167,7 @@ def scene_beverloo_rate(scene: Scene, radii: np.ndarray, outlet_z: float | None 
     return beverloo_rate(outlet, 2.0 * float(radii.mean()), scene.materials.density, g)
 
 
-def _boundary_loops(
-    vertices: np.ndarray, faces: np.ndarray, z: float
-) -> list[tuple[float, float]]:
+def _boundary_loops(vertices: np.ndarray, faces: np.ndarray, z: float) -> list[tuple[float, float]]:
     """``(area m^2, perimeter m)`` of each closed loop of open edges (edges of one triangle
     only) whose vertices all lie in the plane at height ``z`` (m); area projected on x-y."""
     vertices = np.asarray(vertices, dtype=np.float64)

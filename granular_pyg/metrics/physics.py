@@ -12,11 +12,11 @@ from granular_pyg.errors import InputError
 from granular_pyg.scenes import Scene
 
 __all__ = [
+    "across_drum_axis",
     "centre_of_mass",
     "centre_of_mass_swing",
     "crushed_particles",
     "discharged_fraction",
-    "across_drum_axis",
     "drum_axis",
     "dynamic_angle_of_repose",
     "outlet_height",

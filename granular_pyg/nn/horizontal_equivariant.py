@@ -43,7 +43,11 @@ from torch_geometric.utils import scatter
 from granular_pyg.errors import InputError
 from granular_pyg.nn.mlp import MLP, _check_int
 
-__all__ = ["HorizontalEquivariantLayer", "HorizontalEquivariantNetwork", "HorizontalEquivariantProcessor"]
+__all__ = [
+    "HorizontalEquivariantLayer",
+    "HorizontalEquivariantNetwork",
+    "HorizontalEquivariantProcessor",
+]
 
 AGGREGATIONS = ("sum", "mean")
 
@@ -92,7 +96,9 @@ class HorizontalEquivariantLayer(nn.Module):
         src, dst = edge_index
         num = s.shape[0]
         v_src, v_dst = vec[src], vec[dst]
-        e_in = torch.cat([s[dst], s[src], e, _horizontal_dot(v_dst, d), _horizontal_dot(v_src, d)], 1)
+        e_in = torch.cat(
+            [s[dst], s[src], e, _horizontal_dot(v_dst, d), _horizontal_dot(v_src, d)], 1
+        )
         e = e + self.edge_mlp(e_in)
         a, b = self.vector_gates(e).chunk(2, dim=1)  # [E, C] each
         msg = a.unsqueeze(-1) * v_src + b.unsqueeze(-1) * d.unsqueeze(1)  # [E, C, 2]

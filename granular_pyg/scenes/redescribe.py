@@ -23,8 +23,12 @@ def _as_frame(frame) -> np.ndarray:
     q = np.asarray(frame.numpy() if isinstance(frame, torch.Tensor) else frame, np.float64)
     if q.shape != (3, 3) or not np.allclose(q @ q.T, np.eye(3), atol=1e-9):
         raise InputError(f"frame: expected a [3, 3] orthogonal matrix, got {q.tolist()}")
-    if not np.allclose(q[2], [0, 0, 1], atol=1e-9) or not np.allclose(q[:, 2], [0, 0, 1], atol=1e-9):
-        raise InputError("frame: must fix the z axis (gravity): a turn about z or a vertical mirror")
+    if not np.allclose(q[2], [0, 0, 1], atol=1e-9) or not np.allclose(
+        q[:, 2], [0, 0, 1], atol=1e-9
+    ):
+        raise InputError(
+            "frame: must fix the z axis (gravity): a turn about z or a vertical mirror"
+        )
     return q
 
 

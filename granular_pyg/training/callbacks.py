@@ -11,7 +11,6 @@ import torch
 from matplotlib.figure import Figure
 
 from granular_pyg.errors import InputError
-
 from granular_pyg.inference import available_steps, matching_frames, rollout_trajectory
 from granular_pyg.metrics import emd, outlet_point
 

@@ -129,9 +129,7 @@ def _plate_with_hole(hole: np.ndarray) -> Wall:
 def _mesh_hopper(hole: np.ndarray):
     base = make_hopper()
     lid = dataclasses.replace(base.walls[1], name="lid")
-    return dataclasses.replace(
-        base, walls=[_plate_with_hole(hole), lid], params={"outlet_z": 0.0}
-    )
+    return dataclasses.replace(base, walls=[_plate_with_hole(hole), lid], params={"outlet_z": 0.0})
 
 
 def test_the_outlet_of_a_mesh_is_read_from_its_hole():

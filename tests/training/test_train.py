@@ -61,7 +61,18 @@ def test_every_config_group_composes(override):
     + [["model=v3", "objective=push_forward", "objective.parts.push_forward.share=1.0"]]
     + [["model=v3", "objective=unrolled", "objective.parts.unrolled.steps=2"]]
     + [["model=v3", "objective=[unrolled,push_forward]"]],
-    ids=["v1", "v2", "v3", "gns", "bgnn", "attention", "equivariant", "push_forward", "unroll", "mixture"],
+    ids=[
+        "v1",
+        "v2",
+        "v3",
+        "gns",
+        "bgnn",
+        "attention",
+        "equivariant",
+        "push_forward",
+        "unroll",
+        "mixture",
+    ],
 )
 def test_fast_dev_run_on_the_bundled_sample(tmp_path, overrides):
     metrics = train(compose("train", [*SMALL, *overrides, "trainer.fast_dev_run=true"]), tmp_path)
