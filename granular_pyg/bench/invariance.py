@@ -25,7 +25,7 @@ from granular_pyg.bench.trajectories import resolve_trajectory
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair
 from granular_pyg.evaluation.variants import VARIANTS, variant
-from granular_pyg.inference import load_simulator, rollout_trajectory
+from granular_pyg.inference import available_steps, load_simulator, rollout_trajectory
 
 #: Scalars reported per variant (those a scene cannot have are NaN and left out of targets).
 METRICS = (
@@ -54,7 +54,7 @@ def run(
             ``sample:drum`` for the bundled test trajectory.
         variants: names from :data:`~granular_pyg.evaluation.variants.VARIANTS`; ``original``
             is always run first.
-        steps: learned steps per rollout; None: as many as the trajectory holds.
+        steps: learned steps per rollout, at most as many as the trajectory holds; None: all.
         seed: seed of ``turn_random``'s angle.
         wall_guard: roll out with the wall guard (default: the network alone).
         repeats: unused (every rollout is deterministic); accepted for the bench runner.
@@ -70,12 +70,14 @@ def run(
     for ckpt, source in zip(models, trajectories, strict=True):
         sim, _ = load_simulator(ckpt)
         truth = resolve_trajectory(source)
+        most = available_steps(sim, truth)  # scored against the truth: never past its end
+        run_steps = most if steps is None else min(int(steps), most)
         base = None
         for name in names:
             moved = variant(truth, name, seed)
             with torch.inference_mode():
                 pred = rollout_trajectory(
-                    sim, moved, steps=steps, progress=False, wall_guard=wall_guard
+                    sim, moved, steps=run_steps, progress=False, wall_guard=wall_guard
                 )
             scalars = evaluate_pair(moved, pred).scalars
             row = {"model": ckpt, "trajectory": source, "variant": name}
