@@ -25,7 +25,7 @@ LAYERS = [
 LAYER_IDS = ["sum", "mean", "attention"]
 
 #: Relative tolerance of the comparisons per dtype (round-off of a different summation order).
-RTOL = {torch.float32: 1e-6, torch.float64: 1e-12}
+RTOL = {torch.float32: 4e-6, torch.float64: 1e-12}  # float32: about 32 ulps
 
 #: (num_nodes, num_edges, nodes that have edges): a dense graph, one with many nodes without
 #: any edge, and one with no edge at all.
