@@ -25,6 +25,8 @@ _ADDED = {
     ("model", "radius_feature"): False,
     ("model", "material_features"): [],
     ("model", "contact_feature"): False,
+    ("model", "wall_nodes"): "triangle",  # the paper's wall nodes, before surface patches
+    ("data", "augment"): False,  # windows in the recorded frame, before turns and mirrors
 }
 
 
