@@ -3,8 +3,6 @@ then turns the other way) or with its walls re-meshed scores exactly as the orig
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -13,28 +11,18 @@ from granular_pyg.evaluation.variants import VARIANTS, held_still, variant
 from granular_pyg.io import read_trajectory
 from granular_pyg.metrics import dynamic_angle_of_repose
 from granular_pyg.samples import sample_files
-
-
-def _as_rollout(truth, frames: int, k: int = 2):
-    idx = np.arange(0, k * frames, k)
-    return dataclasses.replace(
-        truth,
-        positions=truth.positions[idx],
-        velocities=truth.velocities[idx],
-        times=truth.times[idx],
-        metadata={"initial_frames": 6, "time_step_multiple": k},
-    )
+from tests.evaluation.test_evaluation import _as_rollout
 
 
 @pytest.mark.parametrize("kind,frames", [("drum", 100), ("hopper", 60)])
 def test_truth_metrics_are_the_same_in_every_variant(kind, frames):
     truth = read_trajectory(sample_files(kind, "test")[0])
-    base = evaluate_pair(truth, _as_rollout(truth, frames)).scalars
+    base = evaluate_pair(truth, _as_rollout(truth, k=2, frames=frames)).scalars
     keys = [k for k in base if k.endswith("_truth") or "_truth_" in k or k.startswith("mixing")]
     assert any("angle" in k for k in keys) or kind == "hopper"
     for name in VARIANTS:
         moved = variant(truth, name, seed=1)
-        got = evaluate_pair(moved, _as_rollout(moved, frames)).scalars
+        got = evaluate_pair(moved, _as_rollout(moved, k=2, frames=frames)).scalars
         for key in keys:
             a, b = base[key], got[key]
             assert (np.isnan(a) and np.isnan(b)) or b == pytest.approx(a, rel=1e-4, abs=1e-6), (
