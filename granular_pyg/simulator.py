@@ -186,7 +186,7 @@ class LearnedSimulator(nn.Module):
         normals: wall normal variant: ``"none"`` (V1), ``"single"`` (V2), ``"both"`` (V3).
         latent: latent width of encoder, processor and decoder.
         mlp_layers: hidden layers per MLP.
-        type_scale: factor on the particle/wall one-hot (BGNN: 100; see the README).
+        type_scale: factor on the particle/wall one-hot (BGNN: 100, which stalled our training).
         normal_scale: factor on the normal features.
         wall_weight: weight a particle's ``k`` wall nodes by ``1/k`` (BGNN).
         dt: time step of one learned step (s): the frame spacing times the time-step multiple.
@@ -414,7 +414,8 @@ class LearnedSimulator(nn.Module):
         Returns:
             A Data with ``x [N + W, 3H + 8 + P]`` (``P`` property columns, 0 by default),
             ``edge_index [2, E]``, ``edge_attr [E, 4]`` (5 with ``contact_feature``),
-            ``is_wall [N + W]`` and ``num_real = N``, ready to batch.
+            ``is_wall [N + W]`` and ``num_real = N``, ready to batch; with the equivariant
+            processor the inputs of :meth:`_equivariant_features` instead.
         """
         check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS))
         self._check_props(props, pos_seq.shape[0])
