@@ -312,7 +312,7 @@ def _drop_the_largest(sim, calls):
     a metre down within one step (below the outflow), every other one at rest."""
     dt = float(sim.dt)
 
-    def predict(pos_seq, walls, time, neighbours=None, ids=None, props=None):
+    def predict(pos_seq, walls, time, neighbours=None, ids=None, props=None, frame=None):
         assert props is not None and len(props) == pos_seq.shape[0]
         calls.append((pos_seq.detach().clone(), props))
         acc = torch.zeros(pos_seq.shape[0], 3)

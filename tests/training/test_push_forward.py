@@ -68,12 +68,13 @@ def _perfect_model(hopper):
     sim.dt.fill_(dt)
     positions = torch.from_numpy(hopper.positions).double()
 
-    def true_acceleration(pos_seq, walls, time, neighbours=None, ids=None, props=None):
-        frame = round((time - float(hopper.times[0])) / hopper.frame_dt)
+    def true_acceleration(pos_seq, walls, time, neighbours=None, ids=None, props=None, frame=None):
+        del frame  # the truth's acceleration is in the world frame, as the model's output is
+        index = round((time - float(hopper.times[0])) / hopper.frame_dt)
         last, prev = pos_seq[:, -1].double(), pos_seq[:, -2].double()
-        here = np.flatnonzero(hopper.present[frame])  # the particles, matched by position
-        _, nearest = cKDTree(hopper.positions[frame, here]).query(last.numpy())
-        nxt = positions[frame + STEP, here[nearest]]
+        here = np.flatnonzero(hopper.present[index])  # the particles, matched by position
+        _, nearest = cKDTree(hopper.positions[index, here]).query(last.numpy())
+        nxt = positions[index + STEP, here[nearest]]
         gone = torch.isnan(nxt).any(dim=1)
         nxt[gone] = last[gone] - torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
         return ((nxt - 2 * last + prev) / dt**2).float()
