@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -68,15 +69,27 @@ class WallSet:
         counts = [len(w.faces) for w in self.walls]
         self.offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(int).tolist()
         self.num_triangles = int(sum(counts))
+
+    @cached_property
+    def _patches(self) -> tuple[torch.Tensor, int]:
+        """Grouped once, on first use (only models with a node per patch ask)."""
         patches, first = [], 0
         for w in self.walls:  # patches never span two walls (each has its own motion)
             ids = surface_patches(w.vertices, w.faces)
             patches.append(ids + first)
             first += int(ids.max()) + 1 if len(ids) else 0
-        #: ``[T]`` int64 surface patch of each triangle, global over the walls
-        #: (:func:`~granular_pyg.geometry.surface_patches`).
-        self.patch_of = torch.from_numpy(np.concatenate(patches or [np.zeros(0, np.int64)]))
-        self.num_patches = first
+        return torch.from_numpy(np.concatenate(patches or [np.zeros(0, np.int64)])), first
+
+    @property
+    def patch_of(self) -> torch.Tensor:
+        """``[T]`` int64 surface patch of each triangle, global over the walls
+        (:func:`~granular_pyg.geometry.surface_patches`)."""
+        return self._patches[0]
+
+    @property
+    def num_patches(self) -> int:
+        """Number of surface patches over the walls."""
+        return self._patches[1]
 
     def __repr__(self) -> str:
         names = ", ".join(f"{w.name}: {len(w.faces)}" for w in self.walls)
