@@ -338,6 +338,7 @@ class LearnedSimulator(nn.Module):
     ) -> torch.Tensor:
         """Normalised acceleration ``[N, 3]`` that takes the last state to ``target_pos``,
         expressed in ``frame`` (``[3, 3]`` orthogonal, see :meth:`build_graph`) if given."""
+        pos_seq, target_pos = pos_seq.to(self.dt.device), target_pos.to(self.dt.device)
         last_vel = self.velocities(pos_seq[:, -2:])[:, 0]
         next_vel = (target_pos.double() - pos_seq[:, -1].double()) / self.dt
         acc = (next_vel - last_vel) / self.dt
@@ -419,13 +420,17 @@ class LearnedSimulator(nn.Module):
         """
         check_tensor("pos_seq", pos_seq, (None, self.history + 1, NUM_DIMS))
         self._check_props(props, pos_seq.shape[0])
+        # The geometry (edges, walls' closest points) on the CPU, where the walls live; the
+        # features on the model's device, from pos_seq there (its gradient kept).
+        device = self.dt.device
+        pos_seq = pos_seq.to(device)
         last = pos_seq[:, -1]
-        data = Data(pos=last.detach(), walls=walls, time=float(time))
+        data = Data(pos=last.detach().cpu(), walls=walls, time=float(time))
         if neighbours is None:
             data = self.radius_graph(data)
         else:
-            data.edge_index = neighbours(data.pos, ids)
-        data = self.wall_nodes(data)
+            data.edge_index = neighbours(data.pos, ids.cpu() if ids is not None else None)
+        data = self.wall_nodes(data).to(device)
         if last.requires_grad:  # unrolled training: the features keep the positions' gradient
             data.pos = torch.cat([last.to(data.pos.dtype), data.pos[data.num_real :]])
         if self.equivariant:
@@ -446,7 +451,7 @@ class LearnedSimulator(nn.Module):
         wall_vel = data.wall_vel[num_real:].double()
         normal = data.normal_feat[:, :3].double()
         if frame is not None:
-            q = frame.to(torch.float64).T
+            q = frame.to(rel.device, torch.float64).T
             rel, vel, wall_vel, normal = rel @ q, vel @ q, wall_vel @ q, normal @ q
         dtype = self.vel_mean.dtype  # float32, or float64 for a model turned to double
         vel = (vel.to(dtype) - self.vel_mean) / self.vel_std

@@ -13,7 +13,6 @@ empty hopper much. Two empty sets are equal (0).
 from __future__ import annotations
 
 import numpy as np
-import ot
 from scipy.spatial.distance import cdist
 
 from granular_pyg.errors import InputError
@@ -125,6 +124,8 @@ def emd(
         if sink.shape[1] != a.shape[1] or not np.isfinite(sink).all():
             raise InputError(f"sink: expected {a.shape[1]} finite coordinates, got {sink}")
         a, b = (sink, b) if len(a) == 0 else (a, sink)
+    import ot  # POT, imported on first use: a command that scores no EMD runs without it
+
     # The paper's cost for W2^2; cdist for W1 (ot.dist's expanded form loses digits under sqrt).
     cost = ot.dist(a, b) if squared else cdist(a, b)
     return float(
