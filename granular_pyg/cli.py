@@ -53,6 +53,12 @@ EXIT_INTERRUPTED = 130
 NOT_ONLY_BOOLEAN = frozenset(
     {"checkpoint.save_last", "trainer.fast_dev_run", "trainer.deterministic"}
 )
+#: Keys a user cannot set, with what sets them (an old command line's ``model.dt=...``).
+SET_FOR_YOU = {
+    "model.dt": "the learned step is data.frames_per_step x the training data's frame spacing, "
+    "resolved before the model is built (and read from a checkpoint's model card); set "
+    "data.frames_per_step instead",
+}
 #: Free space (bytes) a run folder's disk needs before a command starts (logs, checkpoints).
 RUN_FOLDER_MIN_FREE = 50 * 2**20
 
@@ -265,6 +271,11 @@ def _precheck(config_name: str, argv: list[str]) -> None:
 
     if GlobalHydra.instance().is_initialized():
         return
+    for arg in argv:
+        key = arg.split("=", 1)[0].lstrip("+~")
+        if key in SET_FOR_YOU:
+            print(f"error: {key}: not a setting: {SET_FOR_YOU[key]}", file=sys.stderr)
+            sys.exit(EXIT_INPUT_ERROR)
     try:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
             cfg = hydra_compose(config_name=config_name, overrides=argv, return_hydra_config=True)

@@ -28,7 +28,7 @@ from granular_pyg.inference import (
     load_simulator,
     matching_frames,
     rollout_trajectory,
-    time_step_multiple,
+    frames_per_step,
     warn_outside_training,
 )
 from granular_pyg.io import (
@@ -153,7 +153,7 @@ def evaluate(cfg: DictConfig) -> Path:
 def _rollout_from_scene(sim, truth: Trajectory, options: dict) -> Trajectory:
     """A rollout of ``sim`` from ``truth``'s Scene alone (packed at rest at the start of the
     fill, seeded by the truth's LIGGGHTS seed) to ``truth``'s last recorded time."""
-    k = time_step_multiple(sim, float(truth.frame_dt))
+    k = frames_per_step(sim, float(truth.frame_dt))
     start = scene_start(truth.scene, sim.history, k, seed=int(truth.metadata.get("seed", 0)))
     if start.num_particles != truth.num_particles:
         raise InputError(

@@ -40,7 +40,7 @@ __all__ = [
     "outside_scene",
     "read_checkpoint",
     "rollout_trajectory",
-    "time_step_multiple",
+    "frames_per_step",
     "warn_outside_training",
 ]
 
@@ -125,7 +125,7 @@ def check_inside_scene(truth: Trajectory, frame: int, name: str = "trajectory") 
     return count
 
 
-def time_step_multiple(sim: LearnedSimulator, frame_dt: float) -> int:
+def frames_per_step(sim: LearnedSimulator, frame_dt: float) -> int:
     """Saved frames per learned step: ``sim.dt / frame_dt``, which must be a whole number."""
     k = whole_multiple(float(sim.dt), frame_dt)
     if k is None:
@@ -154,7 +154,7 @@ def initial_frames(
     if truth.num_particles == 0:
         raise InputError("truth: the trajectory has no particles; there is nothing to roll out")
     truth.check_even_spacing()
-    k = time_step_multiple(sim, truth.frame_dt)
+    k = frames_per_step(sim, truth.frame_dt)
     frames = np.arange(start_frame, start_frame + (sim.history + 1) * k, k)
     if start_frame < 0 or frames[-1] >= truth.num_frames:
         raise InputError(
@@ -232,7 +232,7 @@ def rollout_trajectory(
     dt = float(sim.dt)
     t0 = float(truth.times[initial[-1]])
     settings = {"start_frame": int(start_frame), "dtype": str(dtype).removeprefix("torch.")}
-    settings |= {"skin": skin, "time_step_multiple": k, "wall_guard": bool(wall_guard)}
+    settings |= {"skin": skin, "frames_per_step": k, "wall_guard": bool(wall_guard)}
     settings["precision"] = str(precision)
     guard = WallGuard(torch.from_numpy(truth.radii).double()) if wall_guard else None
     outflow = truth.scene.outflow_z

@@ -94,11 +94,11 @@ def start_from_scene_config(scene_cfg, sim, seed: int = 0, steps: int | None = N
     from omegaconf import OmegaConf
 
     from granular_pyg.errors import whole_number
-    from granular_pyg.inference import time_step_multiple
+    from granular_pyg.inference import frames_per_step
 
     build = OmegaConf.to_container(scene_cfg.build, resolve=True)
     scene = hydra.utils.instantiate(build, _convert_="all")
-    k = time_step_multiple(sim, float(scene.frame_dt))
+    k = frames_per_step(sim, float(scene.frame_dt))
     start = scene_start(scene, sim.history, k, seed=whole_number("seed", seed))
     if steps is None:
         return start, whole_job_steps(scene, sim.history, k)

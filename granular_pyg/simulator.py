@@ -9,7 +9,7 @@ feature mismatch is the classic silent bug of learned simulators). For one time 
 - node features ``[3 H + 6 + 2]``: the last ``H`` velocities (finite differences of positions,
   m/s, normalised by the training statistics; for a wall node the wall's own velocity at the
   node, repeated), the six normal features of the variant (V1/V2/V3; zeros for particles),
-  and the type one-hot (particle, wall) times ``type_scale``; a wall node's features are
+  and the type one-hot (particle, wall); a wall node's features are
   multiplied by its weight (1/k with ``wall_weight``);
 - optional particle-property columns after those (model options, off by default, so a model
   without them is unchanged): ``radius_feature`` adds the particle's radius / ``R`` (0 on wall
@@ -186,8 +186,6 @@ class LearnedSimulator(nn.Module):
         normals: wall normal variant: ``"none"`` (V1), ``"single"`` (V2), ``"both"`` (V3).
         latent: latent width of encoder, processor and decoder.
         mlp_layers: hidden layers per MLP.
-        type_scale: factor on the particle/wall one-hot (BGNN: 100, which stalled our training).
-        normal_scale: factor on the normal features.
         wall_weight: weight a particle's ``k`` wall nodes by ``1/k`` (BGNN).
         dt: time step of one learned step (s): the frame spacing times the time-step multiple.
         graph_backend: radius-graph backend (``"auto"``, ``"scipy"``, ``"torch_cluster"``).
@@ -216,8 +214,6 @@ class LearnedSimulator(nn.Module):
         normals: str = "both",
         latent: int = 128,
         mlp_layers: int = 2,
-        type_scale: float = 1.0,
-        normal_scale: float = 1.0,
         wall_weight: bool = True,
         dt: float = 2.5e-3,
         graph_backend: str = "auto",
@@ -235,7 +231,6 @@ class LearnedSimulator(nn.Module):
         self.radius = float(radius)
         self.history = int(history)
         self.normals = normals
-        self.type_scale = float(type_scale)
         if not isinstance(radius_feature, bool):
             raise InputError(
                 f"model.radius_feature: expected true or false, got {radius_feature!r}"
@@ -256,7 +251,7 @@ class LearnedSimulator(nn.Module):
         self.radius_feature, self.material_features = radius_feature, names
         self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
-        self.wall_nodes = AddWallNodes(radius, normals, normal_scale, wall_weight, wall_nodes)
+        self.wall_nodes = AddWallNodes(radius, normals, wall_weight, wall_nodes)
         extra_in = int(self.radius_feature) + len(self.material_features)
         self.equivariant = isinstance(processor, HorizontalEquivariantProcessor)
         if self.equivariant:
@@ -486,7 +481,7 @@ class LearnedSimulator(nn.Module):
             normal_feat = self._normal_features(normal, data)
         vel_feat = torch.cat([vel.flatten(1), wall_vel.repeat(1, self.history)])
         kind = torch.nn.functional.one_hot(data.is_wall.long(), NUM_TYPES).float()
-        x = torch.cat([vel_feat, normal_feat, kind * self.type_scale], dim=1)
+        x = torch.cat([vel_feat, normal_feat, kind], dim=1)
         x = x * data.node_weight.float().unsqueeze(1)
         if self.uses_props:  # after the wall weight: the values themselves on every node
             x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)
@@ -541,7 +536,7 @@ class LearnedSimulator(nn.Module):
             normal_scalars, normal_vec = n_h.new_zeros((n_h.shape[0], 2)), torch.zeros_like(n_h)
         kind = torch.nn.functional.one_hot(data.is_wall.long(), NUM_TYPES).to(rel.dtype)
         weight = data.node_weight.to(rel.dtype).unsqueeze(1)
-        x = torch.cat([vel_all[..., 2], gram, normal_scalars, kind * self.type_scale], 1) * weight
+        x = torch.cat([vel_all[..., 2], gram, normal_scalars, kind], 1) * weight
         vec = torch.cat([horiz, normal_vec.unsqueeze(1)], dim=1) * weight.unsqueeze(-1)
         if self.uses_props:
             x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)

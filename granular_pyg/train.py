@@ -63,7 +63,7 @@ def _card(cfg: DictConfig, sim, datamodule) -> dict:
         float(sim.radius_graph.radius),
         str(cfg.model.get("normals")),
         sim.history,
-        datamodule.step,
+        datamodule.frames_per_step,
     )
 
 
@@ -84,15 +84,16 @@ def train(cfg: DictConfig, out_dir: str | Path | None = None) -> dict[str, float
     finite_number("data.noise_std", cfg.data.get("noise_std", 0.0), minimum=0.0)
     L.seed_everything(cfg.seed, workers=True)
     torch.set_num_threads(whole_number("threads", cfg.threads, minimum=1))
-    if initial is not None:  # the model section is the checkpoint's: its own classes only
-        model = OmegaConf.to_container(cfg.model, resolve=True)
-        sim = build_model(model, f"init: {cfg.init}", initial["state_dict"])
-    else:
-        sim = instantiate(cfg.model)
-    if cfg.get("compile"):
-        sim.compile_for_training()
     objective = instantiate(cfg.objective)
     datamodule = instantiate(cfg.data)
+    datamodule.prepare(objective)  # the learned step: data.frames_per_step x frame spacing
+    if initial is not None:  # the model section is the checkpoint's: its own classes only
+        model = OmegaConf.to_container(cfg.model, resolve=True)
+        sim = build_model(model | {"dt": datamodule.dt}, f"init: {cfg.init}", initial["state_dict"])
+    else:
+        sim = instantiate(cfg.model, dt=datamodule.dt)
+    if cfg.get("compile"):
+        sim.compile_for_training()
     datamodule.attach(sim, objective)
     card = _card(cfg, sim, datamodule)
     if initial is not None:

@@ -16,7 +16,7 @@ from granular_pyg.inference import (
     load_simulator,
     matching_frames,
     rollout_trajectory,
-    time_step_multiple,
+    frames_per_step,
 )
 from granular_pyg.io import read_trajectory
 from granular_pyg.metrics import leaked_particles
@@ -46,13 +46,13 @@ def drum():
 
 def test_rollout_has_the_initial_states_then_one_frame_per_learned_step(sim, hopper):
     pred = rollout_trajectory(sim, hopper, steps=4, start_frame=10, progress=False)
-    k = time_step_multiple(sim, hopper.frame_dt)
+    k = frames_per_step(sim, hopper.frame_dt)
     assert k == 2
     assert pred.num_frames == sim.history + 1 + 4
     frames = matching_frames(hopper, pred)
     np.testing.assert_array_equal(frames, np.arange(10, 10 + 2 * pred.num_frames, 2))
     np.testing.assert_array_equal(pred.positions[:6], hopper.positions[frames[:6]])
-    assert pred.metadata["steps"] == 4 and pred.metadata["time_step_multiple"] == 2
+    assert pred.metadata["steps"] == 4 and pred.metadata["frames_per_step"] == 2
     assert np.isfinite(pred.positions[6:][hopper.present[frames[6:]]]).all()
     # velocities of predicted frames are backward differences over one learned step
     np.testing.assert_allclose(

@@ -60,7 +60,7 @@ def _features_as_before(sim: LearnedSimulator, pos_seq, walls, time) -> torch.Te
     wall_vel = (data.wall_vel[num_real:].float() - sim.vel_mean) / sim.vel_std
     vel_feat = torch.cat([vel.flatten(1), wall_vel.repeat(1, sim.history)])
     kind = torch.nn.functional.one_hot(data.is_wall.long(), 2).float()
-    x = torch.cat([vel_feat, data.normal_feat.float(), kind * sim.type_scale], dim=1)
+    x = torch.cat([vel_feat, data.normal_feat.float(), kind], dim=1)
     return x * data.node_weight.float().unsqueeze(1)
 
 

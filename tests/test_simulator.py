@@ -202,7 +202,7 @@ def test_wall_nodes_carry_the_rotating_drum_velocity():
     sim = _model(radius=0.01)
     graph = sim.build_graph(seq, WallSet(traj.scene), float(traj.times[50]))
     wall_x = graph.x[graph.is_wall]
-    weight = wall_x[:, -1:] / sim.type_scale  # the 1/k weight scales every wall feature
+    weight = wall_x[:, -1:]  # the 1/k weight scales every wall feature
     wall_vel = wall_x[:, :3] / weight * sim.vel_std + sim.vel_mean
     speed = torch.linalg.vector_norm(wall_vel, dim=1)
     omega, radius = traj.scene.params["omega"], traj.scene.params["drum_radius"]

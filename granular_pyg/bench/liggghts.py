@@ -40,7 +40,7 @@ from granular_pyg.dem import DemRun
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair
-from granular_pyg.inference import load_simulator, rollout_trajectory, time_step_multiple
+from granular_pyg.inference import load_simulator, rollout_trajectory, frames_per_step
 from granular_pyg.io import Trajectory, read_trajectory
 from granular_pyg.samples import sample_files
 from granular_pyg.scene_start import recorded_part, scene_start, whole_job_scalars
@@ -225,7 +225,7 @@ def run(
         learned_sim = float(pred.times[-1] - pred.times[pred.metadata["initial_frames"] - 1])
         row = {
             "simulator": f"learned ({model.get('normals')}, {model['processor']['layer']}, "
-            f"latent {model['latent']}, k = {pred.metadata['time_step_multiple']}"
+            f"latent {model['latent']}, k = {pred.metadata['frames_per_step']}"
             + (f", {device}" if device != "cpu" else "")
             + (", bf16" if precision == "bf16" else "")
             + (", wall guard)" if guarded else ")"),
@@ -329,7 +329,7 @@ def run(
 def _whole_job_row(sim, truth: Trajectory, options: dict, device: str, seed: int) -> dict:
     """The learned whole job: from ``truth``'s Scene alone to its last recorded time, timed,
     and its discharge against ``truth`` (``whole_job_*`` keys)."""
-    k = time_step_multiple(sim, float(truth.frame_dt))
+    k = frames_per_step(sim, float(truth.frame_dt))
     start = scene_start(truth.scene, sim.history, k, seed=seed)
     if start.num_particles != truth.num_particles:
         raise InputError(

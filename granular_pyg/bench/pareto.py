@@ -133,7 +133,7 @@ def run(
                 scalars = evaluate_pair(truth, pred).scalars
                 discharge.append(scalars.get("discharge_rate_rel_error", float("nan")))
                 leaked += scalars["leaked_particles"]
-        k = int(pred.metadata["time_step_multiple"])
+        k = int(pred.metadata["frames_per_step"])
         model = config["model"]
         rows.append(
             {

@@ -54,7 +54,7 @@ def run(
                 "device": torch.cuda.get_device_name(0) if device.startswith("cuda") else "cpu",
                 "processor": model["processor"]["layer"],
                 "latent": model["latent"],
-                "k": pred.metadata["time_step_multiple"],
+                "k": pred.metadata["frames_per_step"],
                 "steps": steps,
                 "simulated_s": simulated,
                 "wall_s": wall,

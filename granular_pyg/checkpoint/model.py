@@ -16,6 +16,7 @@ from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
 from granular_pyg.checkpoint.files import read_training_checkpoint
+from granular_pyg.checkpoint.saved_config import migrate_config
 from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
 
@@ -172,7 +173,7 @@ def load_simulator(
         ``model_card`` (:mod:`granular_pyg.checkpoint.card`; empty for old checkpoints).
     """
     path, ckpt = read_training_checkpoint(path, name, map_location)
-    config = ckpt["config"]
+    config = migrate_config(ckpt["config"])  # an older checkpoint's keys brought to today's
     sim = build_model(config["model"], f"{name}: {path}", ckpt["state_dict"])
     load_weights(sim, ckpt, f"{name}: {path}")
     config = dict(config) | {"model_card": ckpt.get("model_card") or {}}

@@ -18,6 +18,8 @@ _REMOVED = {
     ("data", "keep_leaving"): False,
     ("data", "resample_noise_at_walls"): True,
     ("push_forward", "unroll_noise"): False,
+    ("model", "type_scale"): 1.0,
+    ("model", "normal_scale"): 1.0,
 }
 
 #: Options added later, with the value an older checkpoint's model had (off).

@@ -125,12 +125,12 @@ class WindowDataset(Dataset):
             traj.check_even_spacing()
         self.walls = [WallSet(traj.scene) for traj in self.trajs]
         self.props = [ParticleProps.of(traj) for traj in self.trajs]
-        self.history, self.step, self.extra_steps = (
+        self.history, self.frames_per_step, self.extra_steps = (
             int(history),
             int(frames_per_step),
             int(extra_steps),
         )
-        span_before, span_after = self.history * self.step, (1 + self.extra_steps) * self.step
+        span_before, span_after = self.history * self.frames_per_step, (1 + self.extra_steps) * self.frames_per_step
         self.index: list[tuple[int, int]] = []
         for i, traj in enumerate(self.trajs):
             present = traj.present
@@ -139,15 +139,15 @@ class WindowDataset(Dataset):
                     self.index.append((i, t))
         if not self.index:
             raise InputError(
-                f"no window of {self.history + 2 + self.extra_steps} frames ({self.step} frames "
+                f"no window of {self.history + 2 + self.extra_steps} frames ({self.frames_per_step} frames "
                 "per step) has a particle present throughout: use longer trajectories or a "
                 "smaller frames_per_step"
             )
 
     def _frames(self, t: int) -> np.ndarray:
-        first = t - self.history * self.step
-        last = t + (1 + self.extra_steps) * self.step
-        return np.arange(first, last + 1, self.step)
+        first = t - self.history * self.frames_per_step
+        last = t + (1 + self.extra_steps) * self.frames_per_step
+        return np.arange(first, last + 1, self.frames_per_step)
 
     @property
     def frame_dt(self) -> float:

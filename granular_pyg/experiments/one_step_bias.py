@@ -26,7 +26,7 @@ from omegaconf import DictConfig
 from granular_pyg.cli import command
 from granular_pyg.data.windows import WindowDataset
 from granular_pyg.errors import InputError
-from granular_pyg.inference import load_simulator, time_step_multiple
+from granular_pyg.inference import load_simulator, frames_per_step
 from granular_pyg.io import (
     Trajectory,
     atomic_write,
@@ -68,7 +68,7 @@ def one_step_bias(
     pred_in = [[] for _ in bands]
     true_in = [[] for _ in bands]
     for traj in trajectories:
-        k = time_step_multiple(sim, traj.frame_dt)
+        k = frames_per_step(sim, traj.frame_dt)
         windows = WindowDataset([traj], sim.history, k)  # every frame's window; keep each k-th
         outlet_z = float(traj.scene.params.get("outlet_z", 0.0))
         for item, (_, t) in enumerate(windows.index):

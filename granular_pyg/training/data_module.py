@@ -182,7 +182,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             raise InputError("data: set data.root (a dataset folder) or data.sample")
         self.root, self.sample = root, sample
         self.history = whole_number("data.history", history, minimum=1)
-        self.step = whole_number("data.frames_per_step", frames_per_step, minimum=1)
+        self.frames_per_step = whole_number("data.frames_per_step", frames_per_step, minimum=1)
         self.batch_size = whole_number("data.batch_size (windows per batch)", batch_size, 1)
         self.num_workers = whole_number("data.num_workers", num_workers)
         self.noise_std = finite_number("data.noise_std", noise_std, minimum=0.0)
@@ -210,24 +210,30 @@ class TrajectoryDataModule(L.LightningDataModule):
         if getattr(self, "train_set", None) is not None:
             return
         self.train_set = WindowDataset(
-            self._files("train"), self.history, self.step, extra_steps=self.extra_steps
+            self._files("train"), self.history, self.frames_per_step, extra_steps=self.extra_steps
         )
-        self.val_set = WindowDataset(self._files("valid"), self.history, self.step)
-        self.stats = compute_statistics(self.train_set.trajs, self.step, self.noise_std)
+        self.val_set = WindowDataset(self._files("valid"), self.history, self.frames_per_step)
+        self.stats = compute_statistics(self.train_set.trajs, self.frames_per_step, self.noise_std)
 
     @property
     def dt(self) -> float:
-        """Time of one learned step (s): the frame spacing times ``step``."""
-        return self.step * self.train_set.frame_dt
+        """The learned step (s): the training frames' spacing times ``frames_per_step``; the
+        one place it is resolved (:meth:`prepare` first)."""
+        return self.frames_per_step * self.train_set.frame_dt
 
-    def attach(self, sim: LearnedSimulator, objective: Objective | None = None) -> None:
-        """Give ``sim`` this data's statistics and step, and build graphs with it; the training
-        windows hold the future frames ``objective`` needs."""
+    def prepare(self, objective: Objective | None = None) -> None:
+        """Read the windows, with the future frames ``objective`` needs: the learned step
+        (:attr:`dt`) and the statistics are known from here on, before the model is built."""
         needed = objective.future_frames if objective is not None else 0
         if getattr(self, "train_set", None) is not None and needed > self.extra_steps:
             self.train_set = None  # set up again with the future frames
         self.extra_steps = max(self.extra_steps, needed)
         self.setup()
+
+    def attach(self, sim: LearnedSimulator, objective: Objective | None = None) -> None:
+        """Give ``sim`` this data's statistics and learned step, and build graphs with it; the
+        training windows hold the future frames ``objective`` needs."""
+        self.prepare(objective)
         if sim.history != self.history:
             raise InputError(f"model.history ({sim.history}) != data.history ({self.history})")
         sim.set_normalization(

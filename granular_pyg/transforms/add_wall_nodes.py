@@ -28,7 +28,7 @@ class AddWallNodes(BaseTransform):
 
     The node sits at the triangle's closest point to the particle (Eberly), at the walls' pose
     at ``data.time``, and sends one edge to its particle (wall -> particle only). Node features
-    by variant (``normal_feat``, 6 columns, times ``normal_scale``):
+    by variant (``normal_feat``, 6 columns):
 
     - ``"none"`` (V1): six zeros;
     - ``"single"`` (V2): the normal from the triangle's vertex order, then three zeros;
@@ -53,7 +53,6 @@ class AddWallNodes(BaseTransform):
     Args:
         radius: cut-off (m).
         normals: ``"none"``, ``"single"`` or ``"both"``.
-        normal_scale: factor on the normal features.
         wall_weight: weight a particle's ``k`` wall nodes by ``1 / k``.
         per: ``"triangle"`` or ``"patch"`` (:data:`WALL_NODE_MODES`).
     """
@@ -62,7 +61,6 @@ class AddWallNodes(BaseTransform):
         self,
         radius: float,
         normals: str = "both",
-        normal_scale: float = 1.0,
         wall_weight: bool = False,
         per: str = "triangle",
     ) -> None:
@@ -75,7 +73,6 @@ class AddWallNodes(BaseTransform):
             raise InputError(f"radius: expected a positive cut-off in metres, got {radius!r}")
         self.radius = float(radius)
         self.normals = normals
-        self.normal_scale = float(normal_scale)
         self.wall_weight = bool(wall_weight)
 
     def __repr__(self) -> str:
@@ -94,7 +91,6 @@ class AddWallNodes(BaseTransform):
             feat = torch.cat([contacts.normal, pos.new_zeros((num_wall, 3))], dim=1)
         else:
             feat = canonical_normals(contacts.normal)
-        feat = feat * self.normal_scale
 
         weight = pos.new_ones(num_wall)
         if self.wall_weight and num_wall:

@@ -42,7 +42,7 @@ def _as_rollout(truth, k: int = 2, history: int = 5, frames: int = 100):
         positions=truth.positions[idx],
         velocities=truth.velocities[idx],
         times=truth.times[idx],
-        metadata={"initial_frames": history + 1, "time_step_multiple": k},
+        metadata={"initial_frames": history + 1, "frames_per_step": k},
     )
 
 

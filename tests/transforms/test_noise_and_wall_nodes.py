@@ -102,7 +102,7 @@ def test_wall_node_features_per_variant_and_the_one_over_k_weight():
     corner = torch.tensor([[0.0095, 0.0145, 0.0008]])
     out = {}
     for variant in ("none", "single", "both"):
-        data = AddWallNodes(0.003, variant, normal_scale=2.0, wall_weight=True)(
+        data = AddWallNodes(0.003, variant, wall_weight=True)(
             Data(pos=corner, walls=walls, time=0.0)
         )
         out[variant] = data
@@ -111,7 +111,7 @@ def test_wall_node_features_per_variant_and_the_one_over_k_weight():
     assert torch.equal(out["both"].node_weight[1:], torch.full((k,), 1.0 / k))
     assert (out["none"].normal_feat == 0).all()
     single = out["single"].normal_feat[1:]
-    assert torch.allclose(single[:, :3].norm(dim=1), torch.full((k,), 2.0))
+    assert torch.allclose(single[:, :3].norm(dim=1), torch.full((k,), 1.0))
     assert (single[:, 3:] == 0).all()
     both = out["both"].normal_feat[1:]
     torch.testing.assert_close(both[:, 3:], -both[:, :3])
