@@ -25,10 +25,10 @@ from granular_pyg.evaluation.compare import VARIANTS
 from granular_pyg.evaluation.report import EvaluatedRollout, distinct_names, rollout_label
 from granular_pyg.inference import (
     available_steps,
+    frames_per_step,
     load_simulator,
     matching_frames,
     rollout_trajectory,
-    frames_per_step,
     warn_outside_training,
 )
 from granular_pyg.io import (

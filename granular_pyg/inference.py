@@ -33,6 +33,7 @@ from granular_pyg.simulator import LearnedSimulator, ParticleProps, WallGuard
 __all__ = [
     "available_steps",
     "check_inside_scene",
+    "frames_per_step",
     "initial_frames",
     "load_simulator",
     "load_weights",
@@ -40,7 +41,6 @@ __all__ = [
     "outside_scene",
     "read_checkpoint",
     "rollout_trajectory",
-    "frames_per_step",
     "warn_outside_training",
 ]
 

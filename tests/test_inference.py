@@ -13,10 +13,10 @@ from granular_pyg.config import compose
 from granular_pyg.errors import InputError
 from granular_pyg.geometry import closest_point_on_triangles
 from granular_pyg.inference import (
+    frames_per_step,
     load_simulator,
     matching_frames,
     rollout_trajectory,
-    frames_per_step,
 )
 from granular_pyg.io import read_trajectory
 from granular_pyg.metrics import leaked_particles

@@ -40,7 +40,7 @@ from granular_pyg.dem import DemRun
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair
-from granular_pyg.inference import load_simulator, rollout_trajectory, frames_per_step
+from granular_pyg.inference import frames_per_step, load_simulator, rollout_trajectory
 from granular_pyg.io import Trajectory, read_trajectory
 from granular_pyg.samples import sample_files
 from granular_pyg.scene_start import recorded_part, scene_start, whole_job_scalars

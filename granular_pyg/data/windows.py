@@ -130,7 +130,10 @@ class WindowDataset(Dataset):
             int(frames_per_step),
             int(extra_steps),
         )
-        span_before, span_after = self.history * self.frames_per_step, (1 + self.extra_steps) * self.frames_per_step
+        span_before, span_after = (
+            self.history * self.frames_per_step,
+            (1 + self.extra_steps) * self.frames_per_step,
+        )
         self.index: list[tuple[int, int]] = []
         for i, traj in enumerate(self.trajs):
             present = traj.present
@@ -139,9 +142,9 @@ class WindowDataset(Dataset):
                     self.index.append((i, t))
         if not self.index:
             raise InputError(
-                f"no window of {self.history + 2 + self.extra_steps} frames ({self.frames_per_step} frames "
-                "per step) has a particle present throughout: use longer trajectories or a "
-                "smaller frames_per_step"
+                f"no window of {self.history + 2 + self.extra_steps} frames "
+                f"({self.frames_per_step} frames per step) has a particle present throughout: "
+                "use longer trajectories or a smaller frames_per_step"
             )
 
     def _frames(self, t: int) -> np.ndarray:

@@ -26,7 +26,7 @@ from omegaconf import DictConfig
 from granular_pyg.cli import command
 from granular_pyg.data.windows import WindowDataset
 from granular_pyg.errors import InputError
-from granular_pyg.inference import load_simulator, frames_per_step
+from granular_pyg.inference import frames_per_step, load_simulator
 from granular_pyg.io import (
     Trajectory,
     atomic_write,
