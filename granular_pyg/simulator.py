@@ -187,7 +187,7 @@ class LearnedSimulator(nn.Module):
         latent: latent width of encoder, processor and decoder.
         mlp_layers: hidden layers per MLP.
         wall_weight: weight a particle's ``k`` wall nodes by ``1/k`` (BGNN).
-        dt: time step of one learned step (s): the frame spacing times the time-step multiple.
+        dt: time step of one learned step (s): the frame spacing times ``frames_per_step``.
         graph_backend: radius-graph backend (``"auto"``, ``"scipy"``, ``"torch_cluster"``).
         max_num_neighbors: neighbour cap of the radius graph; None sizes it to fit.
         radius_feature: one more node input: a particle's radius / ``radius`` (0 on wall
