@@ -260,6 +260,16 @@ def _non_ascii_message(argv: list[str]) -> str | None:
 _PRECHECKED = {"done": False}
 
 
+def _refuse_set_for_you(overrides: list[str]) -> None:
+    """Exit 2 with one ``error:`` line naming what sets it when an override sets a key of
+    :data:`SET_FOR_YOU` (with or without ``+``/``~``, on a single run or a ``--multirun``)."""
+    for arg in overrides:
+        key = arg.split("=", 1)[0].lstrip("+~")
+        if key in SET_FOR_YOU:
+            print(f"error: {key}: not a setting: {SET_FOR_YOU[key]}", file=sys.stderr)
+            sys.exit(EXIT_INPUT_ERROR)
+
+
 def _precheck(config_name: str, argv: list[str]) -> None:
     """Compose ``argv``'s overrides once and report a failure as one ``error:`` line, exit 2.
     Skipped for Hydra's flags (``--multirun``, ``--help``, ``--cfg``...), which Hydra handles."""
@@ -271,11 +281,6 @@ def _precheck(config_name: str, argv: list[str]) -> None:
 
     if GlobalHydra.instance().is_initialized():
         return
-    for arg in argv:
-        key = arg.split("=", 1)[0].lstrip("+~")
-        if key in SET_FOR_YOU:
-            print(f"error: {key}: not a setting: {SET_FOR_YOU[key]}", file=sys.stderr)
-            sys.exit(EXIT_INPUT_ERROR)
     try:
         with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
             cfg = hydra_compose(config_name=config_name, overrides=argv, return_hydra_config=True)
@@ -332,6 +337,7 @@ def command(config_name: str) -> Callable[[Callable], Callable]:
         @functools.wraps(func)
         def run(*args, **kwargs):
             if not args and not kwargs:  # from the command line
+                _refuse_set_for_you(sys.argv[1:])
                 _precheck(config_name, sys.argv[1:])
                 keep_freed_memory()
             return hydra_main(*args, **kwargs)

@@ -12,12 +12,16 @@ starts here.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
+from scipy.spatial import ConvexHull, QhullError
 
 from granular_pyg import inference, metrics
 from granular_pyg.errors import InputError
 from granular_pyg.io import Trajectory
-from granular_pyg.scenes import Scene
+from granular_pyg.scenes import ParticleSpec, Scene
+from granular_pyg.scenes.containment import is_closed_surface, walls_at
 from granular_pyg.scenes.packing import MAX_FRACTION, pack_particles
 
 __all__ = [
@@ -56,7 +60,14 @@ def scene_start(
         raise InputError(
             f"history ({history}) and frames_per_step ({frames_per_step}) must be at least 1"
         )
-    packing = pack_particles(scene.particles, seed=seed, max_fraction=max_fraction)
+    spec, inside = _packing_room(scene, max_fraction)
+    packing = pack_particles(
+        spec,
+        seed=seed,
+        max_fraction=max_fraction,
+        ceiling=_box_top(scene, spec),
+        inside=inside,
+    )
     frames = history * frames_per_step + 1
     times = -float(scene.settle_time) + float(scene.frame_dt) * np.arange(frames)
     positions = np.broadcast_to(packing.positions, (frames, *packing.positions.shape))
@@ -75,6 +86,53 @@ def scene_start(
             "packing_fraction": float(packing.fraction),
         },
     )
+
+
+def _box_top(scene: Scene, spec: ParticleSpec) -> float:
+    """The highest a packed particle's top may reach (m): the simulation box's top, less the
+    largest radius (a particle above the box has left the scene)."""
+    return float(scene.domain_hi[2]) - float(np.max(spec.size_distribution[0]))
+
+
+def _packing_room(scene: Scene, max_fraction: float):
+    """``(spec, inside)`` for :func:`pack_particles`: the Scene's own insertion region when it
+    holds the bed at ``max_fraction`` below the box's top; else, like LIGGGHTS's successive
+    insertions stacking the bed up inside the equipment, the walls' interior (their convex
+    hull, each whole particle in it) from the region's bottom to the box's top, the region's
+    bounding box widened to the walls' and ``inside`` the hull test. Closed walls (a drum) or
+    walls that enclose no volume keep the region (it then rises as far as the box allows)."""
+    spec = scene.particles
+    radii = np.asarray(spec.size_distribution[0], np.float64)
+    weights = np.asarray(spec.size_distribution[1], np.float64)
+    mean_volume = float((4.0 / 3.0 * np.pi * radii**3 * weights).sum() / weights.sum())
+    lo, hi = np.asarray(spec.fill_lo, np.float64), np.asarray(spec.fill_hi, np.float64)
+    base = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
+    if spec.fill_shape == "cylinder":
+        base *= np.pi / 4.0
+    top = _box_top(scene, spec)
+    if lo[2] + spec.count * mean_volume / max_fraction / base <= top:
+        return spec, None
+    triangles, _ = walls_at(scene, -float(scene.settle_time))
+    if not len(triangles) or is_closed_surface(triangles):
+        return spec, None
+    try:
+        hull = ConvexHull(triangles.reshape(-1, 3))
+    except QhullError:  # flat walls: no interior
+        return spec, None
+    normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
+    box_lo = np.maximum(hull.min_bound, scene.domain_lo)
+    box_hi = np.minimum(hull.max_bound, scene.domain_hi)
+    room = dataclasses.replace(
+        spec,
+        fill_lo=(float(box_lo[0]), float(box_lo[1]), float(lo[2])),
+        fill_hi=(float(box_hi[0]), float(box_hi[1]), top),
+        fill_shape="box",
+    )
+
+    def inside(centres: np.ndarray, r: np.ndarray) -> np.ndarray:
+        return np.all(centres @ normals.T + offsets <= -r[:, None], axis=1)
+
+    return room, inside
 
 
 def whole_job_steps(scene: Scene, history: int, frames_per_step: int) -> int:
@@ -119,8 +177,6 @@ def recorded_part(pred: Trajectory, truth: Trajectory) -> Trajectory:
         InputError: the rollout does not reach the recorded times, or its frames do not fall
             on ``truth``'s frames (a learned step that does not divide the settle time).
     """
-    import dataclasses
-
     keep = pred.times >= truth.times[0] - 1e-6 * truth.frame_dt
     keep &= pred.times <= truth.times[-1] + 1e-6 * truth.frame_dt
     if keep.sum() < 2:

@@ -389,6 +389,8 @@ CASES = [
     Case("train-unknown-key", "granular_pyg.train", ["model.nope=3"], words=("model.nope",)),
     Case("train-model-dt", "granular_pyg.train", ["model.dt=0.01"],
          words=("model.dt", "not a setting", "data.frames_per_step")),
+    Case("train-model-dt-multirun", "granular_pyg.train", ["--multirun", "+model.dt=0.01,0.02"],
+         words=("model.dt", "not a setting", "data.frames_per_step")),
     Case("train-unknown-option", "granular_pyg.train", ["model=v9"],
          words=("model/v9", "v1, v2, v3")),
     Case("train-malformed-override", "granular_pyg.train", ["trainer.max_epochs=[1"],

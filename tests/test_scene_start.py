@@ -24,6 +24,29 @@ def test_the_start_is_a_packing_at_rest_at_the_start_of_the_fill():
     assert start.metadata["start"] == "scene"
 
 
+def test_a_bed_too_large_for_its_region_fills_the_walls_interior_below_the_box_top():
+    # The region (a box inside the V at its lowest point) would have to rise above the
+    # simulation box to hold 2,000 particles at the packing's fraction: the walls' interior
+    # takes them instead, every particle whole inside the walls and the box, none overlapping.
+    from scipy.spatial import ConvexHull
+
+    from granular_pyg.inference import outside_scene
+    from granular_pyg.scenes.containment import walls_at
+
+    scene = make_hopper(num_particles=2000)
+    start = scene_start(scene, history=1, frames_per_step=1, seed=1)
+    pos, r = start.positions[0].astype(np.float64), start.radii.astype(np.float64)
+    assert not outside_scene(start, 0).any()
+    assert (pos[:, 2] + r <= scene.domain_hi[2] + 1e-6).all()
+    hull = ConvexHull(walls_at(scene, float(start.times[0]))[0].reshape(-1, 3))
+    signed = pos @ hull.equations[:, :3].T + hull.equations[:, 3]
+    assert (signed <= -r[:, None] + 1e-6).all()  # whole particles inside the walls
+    d = np.linalg.norm(pos[:, None] - pos[None], axis=-1) + np.eye(len(pos))
+    assert (d >= r[:, None] + r[None] - 1e-6).all()
+    # Wider than the scene's own region: it did not fit there.
+    assert np.ptp(pos[:, 0]) > scene.particles.fill_hi[0] - scene.particles.fill_lo[0]
+
+
 def test_the_whole_job_spans_fill_settle_and_the_recorded_time():
     scene = make_hopper(settle_time=0.6, duration=1.0, frame_dt=0.0025)
     # 1.6 s in learned steps of 8 x 2.5 ms = 20 ms: 80, less the 5 of the history.

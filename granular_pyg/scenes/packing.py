@@ -6,12 +6,15 @@ The region is the :class:`~granular_pyg.scenes.ParticleSpec`'s box or vertical c
 random sequential packing jams near a solid fraction of 0.38, and gets slow well before it:
 where the particles would fill more than ``max_fraction`` of the region, the region is made
 taller (its top raised, up to ``ceiling``), as LIGGGHTS's successive insertions into the same
-region stack the bed up over the fill time.
+region stack the bed up over the fill time. A region may also be cut by a predicate
+(``inside``): :func:`granular_pyg.scene_start.scene_start` packs a bed too large for its
+region below the simulation box's top into the walls' own interior that way.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +42,8 @@ class Packing:
         region_lo, region_hi: ``[3]`` the bounding box of the region used (m): the spec's, its
             top raised where the particles needed more room.
         shape: ``"box"`` or ``"cylinder"`` (the spec's).
-        fraction: the particles' volume over the used region's.
+        fraction: the particles' volume over the used region's (its box or cylinder, before
+            any ``inside`` cut).
         rounds: rounds of random draws it took.
     """
 
@@ -58,6 +62,7 @@ def pack_particles(
     max_fraction: float = MAX_FRACTION,
     ceiling: float | None = None,
     max_rounds: int = 400,
+    inside: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> Packing:
     """Place ``spec.count`` particles in ``spec``'s region, none overlapping another, each
     entirely inside the region (centre at least its radius from the region's boundary).
@@ -75,6 +80,9 @@ def pack_particles(
             the top also rises by half the region's height every 100 rounds that leave
             particles unplaced (a thin region jams well below ``max_fraction``).
         max_rounds: rounds of draws before giving up.
+        inside: where within the region a particle may go besides: ``inside(centres [M, 3],
+            radii [M]) -> [M] bool`` (True: the whole particle is in the room); a drawn
+            particle outside is drawn again. None: the whole region.
 
     Returns:
         The :class:`Packing`.
@@ -121,6 +129,8 @@ def pack_particles(
             hi[2] = grown if ceiling is None else min(grown, float(ceiling))
         cand = _draw(rng, radii[todo], lo, hi, shape)
         ok = np.ones(len(todo), bool)
+        if inside is not None:
+            ok &= np.asarray(inside(cand, radii[todo]), bool)
         if len(pos):
             i, j, d = _pairs(cand, pos, 2 * r_max)
             ok[i[d < radii[todo][i] + placed_r[j]]] = False
