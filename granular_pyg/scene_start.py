@@ -1,7 +1,8 @@
 """A learned rollout's start from a Scene alone, without any DEM frame.
 
 The particles are placed without overlap in the Scene's insertion region
-(:func:`granular_pyg.scenes.packing.pack_particles`, as LIGGGHTS's ``insert/pack``) at rest,
+(:func:`granular_pyg.scenes.packing.pack_particles`, as LIGGGHTS's ``insert/pack``), or in the
+walls' interior below the box's top when the region is too small for the bed, at rest,
 at the start of the fill: recorded time ``-settle_time`` (``t = 0`` is where LIGGGHTS starts
 recording, after its fill and settle). A model rolled out from there fills, settles, opens the
 outlet (the lid's removal time) and discharges on its own: the whole job, network alone.
