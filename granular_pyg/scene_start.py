@@ -23,7 +23,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.io import Trajectory
 from granular_pyg.scenes import ParticleSpec, Scene
 from granular_pyg.scenes.containment import is_closed_surface, walls_at
-from granular_pyg.scenes.packing import MAX_FRACTION, pack_particles
+from granular_pyg.scenes.packing import MAX_FRACTION, pack_particles, region_base_area
 
 __all__ = [
     "BY_INDEX_SCALARS",
@@ -106,12 +106,9 @@ def _packing_room(scene: Scene, max_fraction: float):
     radii = np.asarray(spec.size_distribution[0], np.float64)
     weights = np.asarray(spec.size_distribution[1], np.float64)
     mean_volume = float((4.0 / 3.0 * np.pi * radii**3 * weights).sum() / weights.sum())
-    lo, hi = np.asarray(spec.fill_lo, np.float64), np.asarray(spec.fill_hi, np.float64)
-    base = float((hi[0] - lo[0]) * (hi[1] - lo[1]))
-    if spec.fill_shape == "cylinder":
-        base *= np.pi / 4.0
+    lo = np.asarray(spec.fill_lo, np.float64)
     top = _box_top(scene, spec)
-    if lo[2] + spec.count * mean_volume / max_fraction / base <= top:
+    if lo[2] + spec.count * mean_volume / max_fraction / region_base_area(spec) <= top:
         return spec, None
     triangles, _ = walls_at(scene, -float(scene.settle_time))
     if not len(triangles) or is_closed_surface(triangles):

@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 from granular_pyg.errors import InputError
 from granular_pyg.scenes.scene import ParticleSpec
 
-__all__ = ["Packing", "pack_particles"]
+__all__ = ["Packing", "pack_particles", "region_base_area"]
 
 #: Default solid fraction of the region the packing aims at (LIGGGHTS's batches: 0.15).
 MAX_FRACTION = 0.2
@@ -106,7 +106,7 @@ def pack_particles(
     radii = np.sort(radii)[::-1].copy()  # the largest first: they find room most easily
     lo, hi = np.asarray(spec.fill_lo, np.float64), np.asarray(spec.fill_hi, np.float64).copy()
     shape = spec.fill_shape
-    base = _base_area(spec)
+    base = region_base_area(spec)
     solid = float((4.0 / 3.0 * math.pi * radii**3).sum())
     needed = lo[2] + solid / max_fraction / base
     if needed > hi[2]:
@@ -156,8 +156,8 @@ def _by_second(pair: tuple[int, int]) -> tuple[int, int]:
     return pair[1], pair[0]
 
 
-def _base_area(spec: ParticleSpec) -> float:
-    """Horizontal area (m^2) of the region."""
+def region_base_area(spec: ParticleSpec) -> float:
+    """Horizontal area (m^2) of ``spec``'s insertion region (its box, or the cylinder's disc)."""
     if spec.fill_shape == "cylinder":
         return math.pi * spec.cylinder[2] ** 2
     lo, hi = np.asarray(spec.fill_lo), np.asarray(spec.fill_hi)

@@ -10,7 +10,7 @@ import pytest
 
 from granular_pyg.errors import InputError
 from granular_pyg.scenes import ParticleSpec, make_hopper
-from granular_pyg.scenes.packing import pack_particles
+from granular_pyg.scenes.packing import pack_particles, region_base_area
 
 
 def _overlaps(pos: np.ndarray, radii: np.ndarray) -> int:
@@ -81,3 +81,8 @@ def test_the_hoppers_own_region_holds_its_bed():
     assert _overlaps(packing.positions, packing.radii) == 0
     lo = np.asarray(scene.particles.fill_lo)
     assert (packing.positions[:, :2] >= lo[:2]).all()
+
+
+def test_the_regions_base_area_is_the_box_or_the_cylinders_disc():
+    assert region_base_area(SPECS["box"]) == pytest.approx(0.04 * 0.02)
+    assert region_base_area(SPECS["cylinder"]) == pytest.approx(math.pi * 0.02**2)
