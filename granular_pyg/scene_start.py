@@ -22,7 +22,7 @@ from granular_pyg import inference, metrics
 from granular_pyg.errors import InputError
 from granular_pyg.io import Trajectory
 from granular_pyg.scenes import ParticleSpec, Scene
-from granular_pyg.scenes.containment import is_closed_surface, walls_at
+from granular_pyg.scenes.containment import inside_convex_hull, is_closed_surface, walls_at
 from granular_pyg.scenes.packing import MAX_FRACTION, pack_particles, region_base_area
 
 __all__ = [
@@ -117,7 +117,6 @@ def _packing_room(scene: Scene, max_fraction: float):
         hull = ConvexHull(triangles.reshape(-1, 3))
     except QhullError:  # flat walls: no interior
         return spec, None
-    normals, offsets = hull.equations[:, :3], hull.equations[:, 3]
     box_lo = np.maximum(hull.min_bound, scene.domain_lo)
     box_hi = np.minimum(hull.max_bound, scene.domain_hi)
     room = dataclasses.replace(
@@ -127,10 +126,7 @@ def _packing_room(scene: Scene, max_fraction: float):
         fill_shape="box",
     )
 
-    def inside(centres: np.ndarray, r: np.ndarray) -> np.ndarray:
-        return np.all(centres @ normals.T + offsets <= -r[:, None], axis=1)
-
-    return room, inside
+    return room, lambda centres, r: inside_convex_hull(centres, hull, tol=r)
 
 
 def whole_job_steps(scene: Scene, history: int, frames_per_step: int) -> int:

@@ -199,6 +199,13 @@ class LearnedSimulator(nn.Module):
         wall_nodes: ``"triangle"`` (a wall node per nearby triangle, the paper's) or
             ``"patch"`` (per nearby surface patch, independent of the triangulation; see
             :class:`~granular_pyg.transforms.AddWallNodes`).
+        walls_over_step: a step's graph holds the walls as they are over the step, from
+            ``time`` to ``time + dt``: those present at its end, with their mean velocities over
+            it (poses at ``time``). A lid removed or a drum started during the step shows in
+            the inputs, which tell a bed that stays at rest from one that starts to move. With
+            False (older models), the walls at ``time``: the two look alike, and the model
+            learns their average, a bed that sinks through a closed lid or creeps in a drum at
+            rest.
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
@@ -222,6 +229,7 @@ class LearnedSimulator(nn.Module):
         material_features: Iterable[str] = (),
         contact_feature: bool = False,
         wall_nodes: str = "triangle",
+        walls_over_step: bool = False,
     ) -> None:
         super().__init__()
         if history < 1:
@@ -248,6 +256,11 @@ class LearnedSimulator(nn.Module):
             raise InputError(
                 f"model.contact_feature: expected true or false, got {contact_feature!r}"
             )
+        if not isinstance(walls_over_step, bool):
+            raise InputError(
+                f"model.walls_over_step: expected true or false, got {walls_over_step!r}"
+            )
+        self.walls_over_step = walls_over_step
         self.radius_feature, self.material_features = radius_feature, names
         self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
@@ -394,7 +407,8 @@ class LearnedSimulator(nn.Module):
             pos_seq: ``[N, H + 1, 3]`` positions of the present particles at the last ``H + 1``
                 steps (m, world frame), oldest first; float32 or float64.
             walls: the scene's walls.
-            time: recorded time (s) of the last position (sets wall poses).
+            time: recorded time (s) of the last position (sets wall poses; which walls exist
+                and their velocities too, or the step to ``time + dt`` with ``walls_over_step``).
             neighbours: a :class:`NeighbourList` to reuse over a rollout (same edges as a
                 fresh radius graph); None: a fresh radius graph.
             ids: ``[N]`` increasing ids of the present particles, for ``neighbours``.
@@ -421,6 +435,8 @@ class LearnedSimulator(nn.Module):
         pos_seq = pos_seq.to(device)
         last = pos_seq[:, -1]
         data = Data(pos=last.detach().cpu(), walls=walls, time=float(time))
+        if self.walls_over_step:
+            data.step_end = float(time) + float(self.dt)
         if neighbours is None:
             data = self.radius_graph(data)
         else:

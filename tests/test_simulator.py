@@ -9,6 +9,7 @@ import pytest
 import torch
 from torch_geometric.data import Batch, Data
 
+from granular_pyg.errors import InputError
 from granular_pyg.geometry import dense_wall_pairs
 from granular_pyg.io import read_trajectory
 from granular_pyg.nn import Processor
@@ -207,3 +208,25 @@ def test_wall_nodes_carry_the_rotating_drum_velocity():
     speed = torch.linalg.vector_norm(wall_vel, dim=1)
     omega, radius = traj.scene.params["omega"], traj.scene.params["drum_radius"]
     assert np.isclose(float(speed.max()), omega * radius, rtol=0.05)
+
+
+def test_a_wall_removed_during_the_step_is_gone_from_its_graph_with_walls_over_step():
+    """The sample's lid goes at 0.02 s. A step from 0.0175 s to 0.02 s must not show it (the bed
+    starts to fall during it), while a step that ends before 0.02 s still does; the option off
+    (older checkpoints) shows the lid whenever it is there at the step's start."""
+    traj = read_trajectory(sample_files("hopper")[0])
+    assert [w.removal_time for w in traj.scene.walls] == [None, 0.02]
+    seq = torch.from_numpy(traj.positions[0:6]).permute(1, 0, 2).contiguous()
+    walls, hopper_only = WallSet(traj.scene), WallSet(traj.scene.walls[:1])
+
+    def lid_nodes(sim, t):
+        every = int(sim.build_graph(seq, walls, t).is_wall.sum())
+        return every - int(sim.build_graph(seq, hopper_only, t).is_wall.sum())
+
+    end, start = _model(walls_over_step=True), _model()
+    assert float(end.dt) == 0.0025
+    assert lid_nodes(start, 0.0175) > 0 and lid_nodes(end, 0.0175) == 0  # gone by 0.02 s
+    assert lid_nodes(end, 0.015) == lid_nodes(start, 0.015) > 0  # the step ends at 0.0175 s
+    assert lid_nodes(start, 0.02) == lid_nodes(end, 0.02) == 0  # already gone
+    with pytest.raises(InputError, match="walls_over_step"):
+        _model(walls_over_step="yes")

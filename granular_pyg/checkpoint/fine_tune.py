@@ -34,8 +34,9 @@ __all__ = [
 
 #: Data settings a fine-tuning run takes over from the initial model's training run.
 INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
-#: Model options a fine-tuning run may change (how the graph is searched, not the network).
-HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors")
+#: Model keys a fine-tuning run may change: how the graph is searched, and how a step sees the
+#: walls (an older model can learn to see a lid removed or a drum started during the step).
+HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors", "walls_over_step")
 
 
 def _read(init: str) -> dict:

@@ -100,16 +100,22 @@ def inside_closed_surface(points: np.ndarray, triangles: np.ndarray) -> np.ndarr
     return votes >= 2
 
 
-def inside_convex_hull(points: np.ndarray, vertices: np.ndarray, tol: float = 0.0) -> np.ndarray:
-    """``[P]`` bool: points ``[P, 3]`` (m) inside the convex hull of ``vertices [V, 3]`` (m) by
-    more than ``tol`` (m; negative lets points stick out by as much)."""
+def inside_convex_hull(
+    points: np.ndarray, vertices: np.ndarray | ConvexHull, tol: float | np.ndarray = 0.0
+) -> np.ndarray:
+    """``[P]`` bool: points ``[P, 3]`` (m) inside the convex hull of ``vertices [V, 3]`` (m; or
+    that hull, built once by the caller) by more than ``tol`` (m, one number or ``[P]``, one
+    per point, e.g. each particle's radius; negative lets points stick out by as much)."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
-    try:
-        hull = ConvexHull(np.asarray(vertices, np.float64))
-    except QhullError:  # flat walls: no volume inside
-        return np.zeros(len(points), bool)
+    hull = vertices
+    if not isinstance(hull, ConvexHull):
+        try:
+            hull = ConvexHull(np.asarray(vertices, np.float64))
+        except QhullError:  # flat walls: no volume inside
+            return np.zeros(len(points), bool)
+    tol = np.broadcast_to(np.asarray(tol, np.float64), (len(points),))
     signed = points @ hull.equations[:, :3].T + hull.equations[:, 3]  # <= 0 inside
-    return np.all(signed <= -tol, axis=1)
+    return np.all(signed <= -tol[:, None], axis=1)
 
 
 def inside_walls(points: np.ndarray, scene: Scene, t: float = 0.0) -> np.ndarray:

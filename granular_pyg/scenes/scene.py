@@ -119,6 +119,20 @@ class WallMotion:
             return False
         return self.stop_time is None or t < self.stop_time
 
+    def active_fraction(self, t0: float, t1: float) -> float:
+        """Share of the recorded times ``[t0, t1]`` (s, ``t1 > t0``) in which the wall moves."""
+        if self.kind == "static" or not t1 > t0:
+            return 0.0
+        return (self._elapsed(t1) - self._elapsed(t0)) / (t1 - t0)
+
+    def mean_linear_velocity(self, t0: float, t1: float) -> np.ndarray:
+        """``[3]`` mean velocity (m/s) of a translating or oscillating wall over the recorded
+        times ``[t0, t1]`` (s, ``t1 > t0``): its shift between them over ``t1 - t0``; zeros
+        for a wall that rests or rotates."""
+        if self.kind not in ("translation", "oscillation") or not t1 > t0:
+            return np.zeros(3)
+        return (self.pose(t1)[1] - self.pose(t0)[1]) / (t1 - t0)
+
     def angle(self, t: float) -> float:
         """Rotation angle (rad) at recorded time ``t`` (s); 0 for other kinds."""
         if self.kind != "rotation":

@@ -95,21 +95,29 @@ class WallSet:
         names = ", ".join(f"{w.name}: {len(w.faces)}" for w in self.walls)
         return f"WallSet({names})"
 
-    def contacts(self, points: torch.Tensor, radius: float, time: float) -> WallContacts:
-        """Every (particle, triangle) pair closer than ``radius`` among the walls present at
-        ``time``, sorted by wall, then particle, then triangle.
+    def contacts(
+        self, points: torch.Tensor, radius: float, time: float, step_end: float | None = None
+    ) -> WallContacts:
+        """Every (particle, triangle) pair closer than ``radius`` among the walls present,
+        sorted by wall, then particle, then triangle.
 
         Args:
             points: ``[P, 3]`` world positions (m), float32 or float64.
             radius: cut-off (m).
-            time: recorded time (s) that sets each wall's pose and presence.
+            time: recorded time (s) that sets each wall's pose.
+            step_end: None: the walls present at ``time``, with their velocities at ``time``.
+                A later time (s): the walls as a learned step from ``time`` to ``step_end``
+                sees them, those present at ``step_end`` with their mean velocities over the
+                step (a lid removed, a drum started or stopped during the step shows).
         """
+        over_step = step_end is not None and step_end > time
+        present_time = step_end if over_step else time
         dtype = points.dtype
         parts = []
         for wall, index, normals, offset in zip(
             self.walls, self.indices, self.normals, self.offsets, strict=True
         ):
-            if not wall.present(time):
+            if not wall.present(present_time):
                 continue
             rot_np, shift_np = wall.motion.pose(time)
             rot = torch.from_numpy(rot_np).to(dtype)
@@ -118,15 +126,18 @@ class WallSet:
             normal = normals[found.tri_idx].to(dtype) @ rot.T
             velocity = torch.zeros_like(found.closest)
             m = wall.motion
-            if m.kind == "rotation" and m.active(time) and m.omega != 0.0:
+            moving = m.active_fraction(time, step_end) if over_step else float(m.active(time))
+            if m.kind == "rotation" and moving > 0.0 and m.omega != 0.0:
                 axis = torch.tensor(m.axis, dtype=dtype)
-                omega = m.omega * axis / torch.linalg.vector_norm(axis)
+                omega = moving * m.omega * axis / torch.linalg.vector_norm(axis)
                 arm = found.closest - torch.tensor(m.origin, dtype=dtype)
                 velocity = torch.linalg.cross(omega.expand_as(arm), arm)
-            elif m.kind in ("translation", "oscillation") and m.active(time):
+            elif m.kind in ("translation", "oscillation") and moving > 0.0:
                 # A rigid shift: every point of the wall moves with the same velocity.
-                shift_rate = torch.from_numpy(m.linear_velocity(time)).to(dtype)
-                velocity = shift_rate.expand_as(found.closest).clone()
+                rate = (
+                    m.mean_linear_velocity(time, step_end) if over_step else m.linear_velocity(time)
+                )
+                velocity = torch.from_numpy(rate).to(dtype).expand_as(found.closest).clone()
             parts.append((found.point_idx, found.tri_idx + offset, found.closest, normal, velocity))
         if not parts:
             empty = torch.zeros(0, dtype=torch.int64)

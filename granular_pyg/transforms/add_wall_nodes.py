@@ -27,7 +27,9 @@ class AddWallNodes(BaseTransform):
     "patch"``: the triangle of the patch nearest the particle, ties to the lower index).
 
     The node sits at the triangle's closest point to the particle (Eberly), at the walls' pose
-    at ``data.time``, and sends one edge to its particle (wall -> particle only). Node features
+    at ``data.time``, and sends one edge to its particle (wall -> particle only); with
+    ``data.step_end`` the walls are those a step from ``data.time`` to it sees
+    (:meth:`~granular_pyg.scenes.WallSet.contacts`). Node features
     by variant (``normal_feat``, 6 columns):
 
     - ``"none"`` (V1): six zeros;
@@ -81,7 +83,8 @@ class AddWallNodes(BaseTransform):
     def forward(self, data: Data) -> Data:
         pos = data.pos
         num_real = pos.shape[0]
-        contacts = data.walls.contacts(pos, self.radius, float(data.time))
+        step_end = float(data.step_end) if "step_end" in data else None
+        contacts = data.walls.contacts(pos, self.radius, float(data.time), step_end)
         if self.per == "patch" and contacts.point_idx.numel():
             contacts = self._nearest_per_patch(pos, contacts, data.walls)
         num_wall = contacts.point_idx.shape[0]

@@ -15,6 +15,7 @@ import trimesh
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 from omegaconf import OmegaConf
+from scipy.spatial import ConvexHull
 
 from granular_pyg.dem.liggghts import (
     check_wall_for_liggghts,
@@ -420,6 +421,19 @@ def test_inside_tests_agree_with_trimesh():
     np.testing.assert_array_equal(inside_closed_surface(points, tris), want)
     hull = inside_convex_hull(points, v)
     np.testing.assert_array_equal(hull, trimesh.Trimesh(v, f).contains(points))
+
+
+def test_inside_convex_hull_with_a_tolerance_per_point_and_a_hull_built_once():
+    """The unit cube: a point 0.1 m from its nearest face is inside by a tolerance below 0.1 m
+    and not above; one tolerance per point gives each point's own answer, the same from the
+    vertices or from a hull built once."""
+    cube = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)])
+    points = np.array([[0.1, 0.5, 0.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.95], [1.2, 0.5, 0.5]])
+    tol = np.array([0.09, 0.45, 0.06, -0.25])
+    want = np.array([True, True, False, True])
+    np.testing.assert_array_equal(inside_convex_hull(points, cube, tol=tol), want)
+    np.testing.assert_array_equal(inside_convex_hull(points, ConvexHull(cube), tol=tol), want)
+    np.testing.assert_array_equal(inside_convex_hull(points, cube, tol=0.11), [0, 1, 0, 0])
 
 
 # --- the example scenes and their insertion regions -------------------------------------------

@@ -1,0 +1,62 @@
+"""How a learned step sees the walls over it (``WallSet.contacts(..., step_end=...)``): the walls
+present at its end, moving with their mean velocity over it, against brute-force averages."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from granular_pyg.scenes import Wall, WallMotion, WallSet
+
+MOTIONS = [
+    WallMotion("rotation", axis=(0.0, 1.0, 0.0), omega=2.0, start_time=0.11, stop_time=0.52),
+    WallMotion("translation", velocity=(0.1, -0.2, 0.05), start_time=0.11, stop_time=0.52),
+    WallMotion("oscillation", amplitude=(0.01, 0.0, 0.02), period=0.07, start_time=0.11),
+]
+STEPS = [(0.0, 0.1), (0.1, 0.14), (0.5, 0.54), (0.2, 0.24), (0.6, 0.64), (0.3, 0.31)]
+
+
+def _brute_mean(motion: WallMotion, t0: float, t1: float, samples: int):
+    """Mid-point averages over [t0, t1] of the wall's moving indicator and linear velocity."""
+    ts = t0 + (np.arange(samples) + 0.5) * (t1 - t0) / samples
+    moving = np.mean([motion.active(t) for t in ts])
+    return moving, np.mean([motion.linear_velocity(t) for t in ts], axis=0)
+
+
+@pytest.mark.parametrize("motion", MOTIONS, ids=lambda m: m.kind)
+@pytest.mark.parametrize(("t0", "t1"), STEPS)
+def test_mean_motion_over_a_step_matches_the_brute_force_average(motion, t0, t1):
+    samples = 20_001  # a jump at a start or stop costs the mid-point rule one sample
+    moving, velocity = _brute_mean(motion, t0, t1, samples)
+    assert motion.active_fraction(t0, t1) == pytest.approx(moving, abs=1.0 / samples)
+    np.testing.assert_allclose(motion.mean_linear_velocity(t0, t1), velocity, atol=2.0 / samples)
+
+
+def test_a_static_wall_never_moves_and_an_empty_step_is_still():
+    assert WallMotion().active_fraction(0.0, 1.0) == 0.0
+    assert MOTIONS[0].active_fraction(0.3, 0.3) == 0.0
+    np.testing.assert_array_equal(MOTIONS[1].mean_linear_velocity(0.3, 0.3), np.zeros(3))
+
+
+def _floor(motion: WallMotion, removal_time: float | None = None) -> WallSet:
+    vertices = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
+    return WallSet([Wall("floor", vertices, np.array([[0, 1, 2]]), motion, removal_time)])
+
+
+def test_contacts_over_a_step_carry_the_mean_velocity_and_the_end_s_walls():
+    points = torch.tensor([[0.1, 0.2, 0.001], [-0.3, 0.0, 0.002]], dtype=torch.float64)
+    spin = MOTIONS[0]
+    walls = _floor(spin)
+    at_start = walls.contacts(points, 0.005, 0.1)  # the drum still at rest at 0.1 s
+    assert torch.count_nonzero(at_start.velocity) == 0
+    over = walls.contacts(points, 0.005, 0.1, step_end=0.14)  # it starts at 0.11 s
+    omega = torch.tensor([0.0, 2.0, 0.0], dtype=torch.float64).expand_as(over.closest)
+    spinning = torch.linalg.cross(omega, over.closest)  # about the y axis through the origin
+    torch.testing.assert_close(over.velocity, 0.75 * spinning)  # 30 of the step's 40 ms
+    torch.testing.assert_close(over.closest, at_start.closest)  # poses at the step's start
+    lid = _floor(WallMotion(), removal_time=0.12)
+    assert len(lid.contacts(points, 0.005, 0.1).point_idx) == 2
+    assert len(lid.contacts(points, 0.005, 0.1, step_end=0.14).point_idx) == 0
+    assert len(lid.contacts(points, 0.005, 0.1, step_end=0.12).point_idx) == 0  # gone at 0.12 s
+    assert len(lid.contacts(points, 0.005, 0.08, step_end=0.11).point_idx) == 2
