@@ -13,8 +13,9 @@ event (a removal, or the start or stop of a motion).
 Wall motions map onto ``fix move/mesh`` styles: ``rotation`` -> ``rotate``, ``translation`` ->
 ``linear``, ``oscillation`` -> ``wiggle``. A motion fix is created at the motion's start time
 and unfixed at its stop time (or just before its wall is removed); an unfixed mesh keeps the pose
-it reached. Measured with ``dump mesh/stl`` (LIGGGHTS 3.8.0, ``tests/scenes/test_mesh_scene.py``):
-the mesh follows :meth:`~granular_pyg.scenes.WallMotion.pose` across run splits and stops;
+it reached; a rotation's reversal unfixes it and creates it again turning the other way.
+Measured with ``dump mesh/stl`` (LIGGGHTS 3.8.0, ``tests/scenes/test_mesh_scene.py``): the mesh
+follows :meth:`~granular_pyg.scenes.WallMotion.pose` across run splits, stops and reversals;
 ``linear`` and ``rotate`` to round-off, ``wiggle`` within ``amplitude * 2 pi / period * dem_dt``
 (LIGGGHTS sums velocity x step, a half-step phase lead: 1.9e-5 m for 2 mm at 75 Hz).
 
@@ -173,11 +174,12 @@ def _wall_fix(scene: Scene, t: float) -> list[str]:
     ]
 
 
-def _move_style(wall: Wall) -> str | None:
-    """The ``fix move/mesh`` style and arguments of the wall's motion; None if it never moves."""
+def _move_style(wall: Wall, sense: float = 1.0) -> str | None:
+    """The ``fix move/mesh`` style and arguments of the wall's motion (a rotation turned the
+    other way for ``sense = -1``); None if it never moves."""
     m = wall.motion
     if m.kind == "rotation" and m.omega != 0.0:
-        axis = np.asarray(m.axis, float) * np.sign(m.omega)
+        axis = np.asarray(m.axis, float) * np.sign(m.omega) * sense
         period = 2 * math.pi / abs(m.omega)
         return f"rotate origin {_fmt(m.origin)} axis {_fmt(axis)} period {period!r}"
     if m.kind == "translation" and any(m.velocity):
@@ -212,6 +214,14 @@ def _events(scene: Scene) -> list[tuple[float, list[str]]]:
             stop = gone
         if stop is not None and stop < scene.duration:
             stops.setdefault(stop, []).append(f"unfix move_{wall.name}")
+        # A reversal: the fix is replaced by one turning the other way from the pose reached.
+        end = min(scene.duration, math.inf if stop is None else stop)
+        for k, flip in enumerate(t for t in m.reverse_times if t < end):
+            stops.setdefault(flip, []).append(f"unfix move_{wall.name}")
+            starts.setdefault(flip, []).append(
+                f"fix move_{wall.name} all move/mesh mesh wall_{wall.name} "
+                f"{_move_style(wall, -1.0 if k % 2 == 0 else 1.0)}"
+            )
     for wall in scene.walls:
         if wall.removal_time is not None:
             removals.setdefault(wall.removal_time, []).extend(

@@ -28,6 +28,7 @@ refused in a script (pass its log instead).
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -267,31 +268,59 @@ class RunScript:
         moves = [m for m in self.moves if m.mesh_id == mesh_id]
         if not moves:
             return None
-        if len(moves) > 1:
+        for move in moves:
+            if move.motion is None:
+                problem = move.problem
+                raise InputError(
+                    problem if problem.startswith(move.where) else f"{move.where}: {problem}"
+                )
+            if move.start_step is None or not move.stop_known:
+                raise InputError(
+                    f"{move.where}: the step at which this motion starts or stops is unknown "
+                    f"({self.problems.get('step', 'no step count')}); pass the run's log "
+                    "(--log) or give the motion in walls.yaml (--walls)"
+                )
+        moves = [m for m in moves if m.stop_step is None or m.stop_step > m.start_step]
+        if not moves:
+            return None  # stopped before it moved
+        if len(moves) > 1 and not _reverses(moves):
             listed = ", ".join(m.where for m in moves)
             raise InputError(
                 f"{self.what}: mesh {mesh_id} has {len(moves)} move/mesh fixes ({listed}); a "
-                "wall has one motion: give the motion that matters in walls.yaml (--walls)"
+                "wall has one motion (or one rotation whose fixes follow each other, each "
+                "turning back at the same speed): give the motion that matters in walls.yaml "
+                "(--walls)"
             )
-        move = moves[0]
-        if move.motion is None:
-            problem = move.problem
-            raise InputError(
-                problem if problem.startswith(move.where) else f"{move.where}: {problem}"
-            )
-        if move.start_step is None or not move.stop_known:
-            raise InputError(
-                f"{move.where}: the step at which this motion starts or stops is unknown "
-                f"({self.problems.get('step', 'no step count')}); pass the run's log (--log) or "
-                "give the motion in walls.yaml (--walls)"
-            )
-        stop = None if move.stop_step is None else move.stop_step * dem_dt
-        start = move.start_step * dem_dt
-        if stop is not None and stop <= start:
-            return None  # stopped before it moved
-        fields = {k: getattr(move.motion, k) for k in ("kind", "axis", "origin", "omega")}
-        fields |= {k: getattr(move.motion, k) for k in ("velocity", "amplitude", "period")}
-        return WallMotion(**fields, start_time=start, stop_time=stop), move.where
+        first, last = moves[0], moves[-1]
+        stop = None if last.stop_step is None else last.stop_step * dem_dt
+        fields = {k: getattr(first.motion, k) for k in ("kind", "axis", "origin", "omega")}
+        fields |= {k: getattr(first.motion, k) for k in ("velocity", "amplitude", "period")}
+        flips = tuple(m.start_step * dem_dt for m in moves[1:])
+        motion = WallMotion(
+            **fields, start_time=first.start_step * dem_dt, stop_time=stop, reverse_times=flips
+        )
+        return motion, first.where
+
+
+def _reverses(moves: list[MeshMove]) -> bool:
+    """Whether ``moves`` (in script order, steps known) are one rotation turned back and forth:
+    each fix starts at the step the one before stopped, about the same axis line at the same
+    speed, turning the other way."""
+    for a, b in itertools.pairwise(moves):
+        ma, mb = a.motion, b.motion
+        if ma.kind != "rotation" or mb.kind != "rotation" or a.stop_step != b.start_step:
+            return False
+        axis_a = np.asarray(ma.axis) / np.linalg.norm(ma.axis)
+        axis_b = np.asarray(mb.axis) / np.linalg.norm(mb.axis)
+        offset = np.asarray(mb.origin) - np.asarray(ma.origin)
+        scale = max(1.0, float(np.abs(ma.origin).max()))
+        if not (
+            np.allclose(axis_b, -axis_a, atol=1e-9)
+            and np.linalg.norm(np.cross(offset, axis_a)) <= 1e-9 * scale
+            and math.isclose(ma.omega, mb.omega, rel_tol=1e-9)
+        ):
+            return False
+    return True
 
 
 def read_run_script(path: str | os.PathLike, is_log: bool | None = None) -> RunScript:

@@ -50,6 +50,7 @@ def make_drum(
     materials: dict | Materials | None = None,
     spin_start: float = 0.0,
     spin_stop: float | None = None,
+    spin_reverse: float | None = None,
 ) -> Scene:
     """Build the drum Scene.
 
@@ -68,6 +69,9 @@ def make_drum(
             bed lies at rest in a drum at rest (a resting state the data then holds).
         spin_stop: recorded time (s) at which the drum stops (the bed comes to rest again), or
             None (never); a value at or beyond ``duration`` also means never within the record.
+        spin_reverse: recorded time (s) at which the drum turns back the other way at the
+            same speed (the bed's slope flips), or None (never); a value at or after the
+            stop (or ``duration``) also means never.
 
     Returns:
         A Scene with one wall ``drum`` rotating about the y axis through the origin.
@@ -107,6 +111,10 @@ def make_drum(
     ext = drum_radius + margin
     if isinstance(materials, Mapping):
         materials = Materials(**materials)
+    stop = spin_stop if spin_stop is not None and spin_stop < duration else None
+    end = duration if stop is None else stop
+    reversing = spin_reverse is not None and spin_start < spin_reverse < end
+    reverse = (spin_reverse,) if reversing else ()
     params = {
         "drum_radius": drum_radius,
         "length": length,
@@ -117,6 +125,8 @@ def make_drum(
         "spin_start": spin_start,
         "spin_stop": spin_stop,
     }
+    if reverse:  # only then: the params of drums that never reverse read as before
+        params["spin_reverse"] = spin_reverse
     return Scene(
         name="drum",
         kind="drum",
@@ -130,7 +140,8 @@ def make_drum(
                     axis=(0.0, 1.0, 0.0),
                     omega=omega,
                     start_time=spin_start,
-                    stop_time=spin_stop if spin_stop is not None and spin_stop < duration else None,
+                    stop_time=stop,
+                    reverse_times=reverse,
                 ),
             )
         ],

@@ -54,6 +54,7 @@ _MOTION_KEYS = (
     "amplitude",
     "period",
     "stop_time",
+    "reverse_times",
 )
 
 

@@ -19,6 +19,7 @@ stores NaN for a particle from the first frame it is gone.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
@@ -56,8 +57,9 @@ class WallMotion:
       period)``.
 
     Every motion starts at ``start_time`` (the wall rests at its mesh pose before) and, when
-    ``stop_time`` is given, stops there and keeps the pose it reached. Fields that do not belong
-    to the kind are ignored (their defaults are stored).
+    ``stop_time`` is given, stops there and keeps the pose it reached. A rotation may reverse
+    its sense at ``reverse_times`` (a drum turned back and forth; one more ``fix move/mesh``
+    each). Fields that do not belong to the kind are ignored (their defaults are stored).
 
     Attributes:
         kind: one of :data:`MOTION_KINDS`.
@@ -69,6 +71,9 @@ class WallMotion:
         amplitude: oscillation amplitude ``[3]`` (m).
         period: oscillation period (s, > 0 for an oscillation).
         stop_time: recorded time (s, > start_time) at which the motion stops, or None (never).
+        reverse_times: recorded times (s, increasing, between ``start_time`` and
+            ``stop_time``) at which a rotation turns the other way at the same ``|omega|``;
+            empty: never.
     """
 
     kind: str = "static"
@@ -80,6 +85,7 @@ class WallMotion:
     amplitude: tuple[float, float, float] = (0.0, 0.0, 0.0)
     period: float = 0.0
     stop_time: float | None = None
+    reverse_times: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if self.kind not in MOTION_KINDS:
@@ -106,6 +112,33 @@ class WallMotion:
             raise InputError(
                 f"motion.period: an oscillation needs a positive period (s), got {self.period}"
             )
+        self._check_reverse_times()
+
+    def _check_reverse_times(self) -> None:
+        times = tuple(float(t) for t in np.atleast_1d(np.asarray(self.reverse_times, float)))
+        object.__setattr__(self, "reverse_times", times)
+        if not times:
+            return
+        if self.kind != "rotation":
+            raise InputError(
+                f"motion.reverse_times: only a rotation reverses, this motion is a {self.kind}; "
+                "drop reverse_times"
+            )
+        stop = math.inf if self.stop_time is None else self.stop_time
+        bounds = (self.start_time, *times, stop)
+        if not all(a < b for a, b in itertools.pairwise(bounds)):
+            raise InputError(
+                f"motion.reverse_times {list(times)}: expected increasing times between "
+                f"start_time ({self.start_time} s) and stop_time ({self.stop_time} s)"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a dict; ``reverse_times`` only when the motion reverses (the files
+        of motions that never do read as before it existed)."""
+        out = asdict(self)
+        if not self.reverse_times:
+            del out["reverse_times"]
+        return out
 
     def _elapsed(self, t: float) -> float:
         """Time (s) the motion has run by recorded time ``t``."""
@@ -119,11 +152,35 @@ class WallMotion:
             return False
         return self.stop_time is None or t < self.stop_time
 
-    def active_fraction(self, t0: float, t1: float) -> float:
-        """Share of the recorded times ``[t0, t1]`` (s, ``t1 > t0``) in which the wall moves."""
-        if self.kind == "static" or not t1 > t0:
+    def _turned(self, t: float) -> float:
+        """Time (s) the motion has run by recorded time ``t``, counted backwards while a
+        rotation runs reversed (so ``omega * _turned(t)`` is its angle)."""
+        elapsed = self._elapsed(t)
+        if not self.reverse_times:
+            return elapsed
+        end = self.start_time + elapsed
+        turned, sense, since = 0.0, 1.0, self.start_time
+        for flip in self.reverse_times:
+            if flip >= end:
+                break
+            turned += sense * (flip - since)
+            sense, since = -sense, flip
+        return turned + sense * (end - since)
+
+    def angular_velocity(self, t: float) -> float:
+        """Signed angular velocity (rad/s, right-handed about ``axis``) at recorded time ``t``
+        (s): ``+-omega`` while a rotation runs (the sign flips at each reverse time), else 0."""
+        if self.kind != "rotation" or not self.active(t):
             return 0.0
-        return (self._elapsed(t1) - self._elapsed(t0)) / (t1 - t0)
+        flips = sum(1 for flip in self.reverse_times if flip <= t)
+        return -self.omega if flips % 2 else self.omega
+
+    def mean_angular_velocity(self, t0: float, t1: float) -> float:
+        """Mean signed angular velocity (rad/s) of a rotation over the recorded times
+        ``[t0, t1]`` (s, ``t1 > t0``): its turn between them over ``t1 - t0``; 0 otherwise."""
+        if self.kind != "rotation" or not t1 > t0:
+            return 0.0
+        return self.omega * (self._turned(t1) - self._turned(t0)) / (t1 - t0)
 
     def mean_linear_velocity(self, t0: float, t1: float) -> np.ndarray:
         """``[3]`` mean velocity (m/s) of a translating or oscillating wall over the recorded
@@ -137,7 +194,7 @@ class WallMotion:
         """Rotation angle (rad) at recorded time ``t`` (s); 0 for other kinds."""
         if self.kind != "rotation":
             return 0.0
-        return self.omega * self._elapsed(t)
+        return self.omega * self._turned(t)
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Pose at recorded time ``t`` (s): ``(rotation [3, 3], translation [3])`` with
@@ -176,7 +233,7 @@ class WallMotion:
         points = np.asarray(points, float)
         if self.kind == "rotation" and self.active(t):
             axis = np.asarray(self.axis, float)
-            omega = self.omega * axis / np.linalg.norm(axis)
+            omega = self.angular_velocity(t) * axis / np.linalg.norm(axis)
             return np.cross(omega, points - np.asarray(self.origin, float))
         return np.broadcast_to(self.linear_velocity(t), points.shape).copy()
 
@@ -488,7 +545,7 @@ class Scene:
                 "name": w.name,
                 "vertices": w.vertices.tolist(),
                 "faces": w.faces.tolist(),
-                "motion": asdict(w.motion),
+                "motion": w.motion.to_dict(),
                 "removal_time": w.removal_time,
             }
             for w in self.walls

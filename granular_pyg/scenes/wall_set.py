@@ -126,13 +126,18 @@ class WallSet:
             normal = normals[found.tri_idx].to(dtype) @ rot.T
             velocity = torch.zeros_like(found.closest)
             m = wall.motion
-            moving = m.active_fraction(time, step_end) if over_step else float(m.active(time))
-            if m.kind == "rotation" and moving > 0.0 and m.omega != 0.0:
-                axis = torch.tensor(m.axis, dtype=dtype)
-                omega = moving * m.omega * axis / torch.linalg.vector_norm(axis)
-                arm = found.closest - torch.tensor(m.origin, dtype=dtype)
-                velocity = torch.linalg.cross(omega.expand_as(arm), arm)
-            elif m.kind in ("translation", "oscillation") and moving > 0.0:
+            if m.kind == "rotation":
+                rate = (
+                    m.mean_angular_velocity(time, step_end)
+                    if over_step
+                    else m.angular_velocity(time)
+                )
+                if rate != 0.0:
+                    axis = torch.tensor(m.axis, dtype=dtype)
+                    omega = rate * axis / torch.linalg.vector_norm(axis)
+                    arm = found.closest - torch.tensor(m.origin, dtype=dtype)
+                    velocity = torch.linalg.cross(omega.expand_as(arm), arm)
+            elif m.kind in ("translation", "oscillation"):
                 # A rigid shift: every point of the wall moves with the same velocity.
                 rate = (
                     m.mean_linear_velocity(time, step_end) if over_step else m.linear_velocity(time)

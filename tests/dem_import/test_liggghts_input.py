@@ -58,6 +58,25 @@ def test_a_rendered_script_reads_back_into_its_scene(tmp_path, build):
     assert script.read_text().splitlines()[line - 1] == f"timestep {scene.dem_dt!r}"
 
 
+def test_a_drum_turned_back_and_forth_reads_back_as_one_reversing_rotation(tmp_path):
+    scene = make_drum(spin_start=0.1, spin_reverse=0.6, spin_stop=1.5, omega=-2.5)
+    script = _render(tmp_path, scene)
+    assert script.read_text().count("fix move_drum all move/mesh") == 2
+    motion, where = read_run_script(script).motion_for("wall_drum", scene.dem_dt)
+    want = scene.walls[0].motion
+    times = (motion.start_time, motion.stop_time, *motion.reverse_times)
+    assert times == pytest.approx((0.1, 1.5, 0.6), abs=1e-12)
+    first = script.read_text().splitlines()[int(where.rsplit(":", 1)[1]) - 1]
+    assert first.startswith("fix move_drum") and "axis -0.0 -1.0 -0.0" in first
+    for t in np.linspace(0.0, 2.0, 41):  # the same poses (the axis may come back flipped)
+        np.testing.assert_allclose(motion.pose(t)[0], want.pose(t)[0], atol=1e-9)
+    # Two fixes that do not turn one rotation back at the same speed stay refused.
+    text = script.read_text().replace("period 2.5132741228718345\n", "period 2.0\n", 1)
+    (tmp_path / "other.run").write_text(text)
+    with pytest.raises(InputError, match=r"2 move/mesh fixes .*turning back at the same speed"):
+        read_run_script(tmp_path / "other.run").motion_for("wall_drum", scene.dem_dt)
+
+
 def test_a_log_reads_like_its_script_and_skips_unsubstituted_lines(tmp_path):
     log = tmp_path / "log.liggghts"
     log.write_text(

@@ -111,9 +111,35 @@ def test_rotation_pose_is_bit_identical_to_the_rodrigues_formula():
     np.testing.assert_allclose(m.point_velocities(points, 1.0), [[0.06, 0.0, 0.0]])
 
 
+def test_a_reversed_rotation_turns_back_through_the_poses_it_came_from():
+    m = WallMotion(
+        "rotation",
+        axis=(0.0, 0.0, 1.0),
+        omega=1.5,
+        start_time=0.1,
+        stop_time=1.4,
+        reverse_times=(0.5, 1.3),
+    )
+    forward = WallMotion("rotation", axis=(0.0, 0.0, 1.0), omega=1.5, start_time=0.1)
+    assert m.angle(0.5) == pytest.approx(0.6) and m.angle(0.9) == pytest.approx(0.0)
+    assert m.angle(1.3) == pytest.approx(-0.6) and m.angle(2.0) == pytest.approx(-0.45)
+    for t in (0.3, 0.5):  # before the reversal: the plain rotation's poses, bit for bit
+        np.testing.assert_array_equal(m.pose(t)[0], forward.pose(t)[0])
+    np.testing.assert_allclose(m.pose(0.7)[0], forward.pose(0.3)[0], atol=1e-15)  # on the way back
+    assert [m.angular_velocity(t) for t in (0.05, 0.4, 0.5, 1.35, 1.5)] == [0, 1.5, -1.5, 1.5, 0]
+    points = np.array([[0.02, 0.0, 0.0]])
+    np.testing.assert_allclose(m.point_velocities(points, 0.6), [[0.0, -0.03, 0.0]])
+    assert Scene.from_dict(_moving_scene(walls=[_plate("p", m)]).to_dict()).walls[0].motion == m
+    assert "reverse_times" not in forward.to_dict()  # files of motions that never reverse as before
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
+        ({"kind": "translation", "reverse_times": (0.5,)}, "only a rotation reverses"),
+        ({"kind": "rotation", "start_time": 0.5, "reverse_times": (0.2,)}, "reverse_times"),
+        ({"kind": "rotation", "reverse_times": (0.4, 0.3)}, "increasing"),
+        ({"kind": "rotation", "stop_time": 1.0, "reverse_times": (1.2,)}, "stop_time"),
         ({"kind": "spin"}, "motion.kind"),
         ({"kind": "oscillation", "amplitude": (1, 0, 0)}, "motion.period"),
         ({"kind": "translation", "start_time": 1.0, "stop_time": 0.5}, "stop_time"),
@@ -176,8 +202,9 @@ def test_liggghts_script_starts_and_stops_motions_between_runs():
 
 def test_liggghts_moves_the_walls_as_their_poses_say(tmp_path):
     """``dump mesh/stl`` every millisecond against ``Wall.vertices_at``: translation and rotation
-    (each stopping) to the dump's precision, the wiggle within ``A omega dt`` (LIGGGHTS sums
-    velocity x step), all across the run splits at 0.01, 0.025 and 0.03 s."""
+    (each stopping, the rotation reversing on the way) to the dump's precision, the wiggle within
+    ``A omega dt`` (LIGGGHTS sums velocity x step), across the run splits at 0.01, 0.013, 0.025
+    and 0.03 s."""
     walls = [
         _plate(
             "floor",
@@ -191,7 +218,12 @@ def test_liggghts_moves_the_walls_as_their_poses_say(tmp_path):
         _plate(
             "spinner",
             WallMotion(
-                "rotation", axis=(0, 0, 1), origin=(0.001, 0, 0), omega=30.0, stop_time=0.025
+                "rotation",
+                axis=(0, 0, 1),
+                origin=(0.001, 0, 0),
+                omega=30.0,
+                stop_time=0.025,
+                reverse_times=(0.013,),
             ),
             z=0.02,
         ),
@@ -374,6 +406,14 @@ def test_mesh_scene_walls_follow_units_scale_and_offset(tmp_path):
     np.testing.assert_allclose(v.max(0), [0.105, 0.1, 0.1], atol=1e-15)
     np.testing.assert_allclose(scene.particles.fill_lo, [0.0125] * 3)
     assert scene.kind == "other" and scene.outflow_z is None
+    spin = {"kind": "rotation", "axis": [0, 0, 1], "omega": 2.0, "reverse_times": [0.5, 0.9]}
+    rocked = make_mesh_scene(
+        walls={"tet": {"file": str(path), "units": "mm", "motion": spin}},
+        insertion={"shape": "box", "lo": [0.015, 0.015, 0.015], "hi": [0.025, 0.025, 0.025]},
+        num_particles=5,
+        particle_radius=0.001,
+    )
+    assert rocked.wall("tet").motion.reverse_times == (0.5, 0.9)
 
 
 def test_example_meshes_reproduce_the_shipped_files_byte_identically(tmp_path):

@@ -13,29 +13,33 @@ MOTIONS = [
     WallMotion("rotation", axis=(0.0, 1.0, 0.0), omega=2.0, start_time=0.11, stop_time=0.52),
     WallMotion("translation", velocity=(0.1, -0.2, 0.05), start_time=0.11, stop_time=0.52),
     WallMotion("oscillation", amplitude=(0.01, 0.0, 0.02), period=0.07, start_time=0.11),
+    WallMotion(
+        "rotation", axis=(1.0, 0.0, 0.0), omega=-3.0, start_time=0.11, reverse_times=(0.22, 0.305)
+    ),
 ]
 STEPS = [(0.0, 0.1), (0.1, 0.14), (0.5, 0.54), (0.2, 0.24), (0.6, 0.64), (0.3, 0.31)]
 
 
 def _brute_mean(motion: WallMotion, t0: float, t1: float, samples: int):
-    """Mid-point averages over [t0, t1] of the wall's moving indicator and linear velocity."""
+    """Mid-point averages over [t0, t1] of the wall's angular and linear velocity."""
     ts = t0 + (np.arange(samples) + 0.5) * (t1 - t0) / samples
-    moving = np.mean([motion.active(t) for t in ts])
-    return moving, np.mean([motion.linear_velocity(t) for t in ts], axis=0)
+    spin = np.mean([motion.angular_velocity(t) for t in ts])
+    return spin, np.mean([motion.linear_velocity(t) for t in ts], axis=0)
 
 
 @pytest.mark.parametrize("motion", MOTIONS, ids=lambda m: m.kind)
 @pytest.mark.parametrize(("t0", "t1"), STEPS)
 def test_mean_motion_over_a_step_matches_the_brute_force_average(motion, t0, t1):
-    samples = 20_001  # a jump at a start or stop costs the mid-point rule one sample
-    moving, velocity = _brute_mean(motion, t0, t1, samples)
-    assert motion.active_fraction(t0, t1) == pytest.approx(moving, abs=1.0 / samples)
+    samples = 20_001  # a jump at a start, stop or reversal costs the mid-point rule a sample
+    spin, velocity = _brute_mean(motion, t0, t1, samples)
+    rate = abs(motion.omega)
+    assert motion.mean_angular_velocity(t0, t1) == pytest.approx(spin, abs=2 * rate / samples)
     np.testing.assert_allclose(motion.mean_linear_velocity(t0, t1), velocity, atol=2.0 / samples)
 
 
 def test_a_static_wall_never_moves_and_an_empty_step_is_still():
-    assert WallMotion().active_fraction(0.0, 1.0) == 0.0
-    assert MOTIONS[0].active_fraction(0.3, 0.3) == 0.0
+    assert WallMotion().mean_angular_velocity(0.0, 1.0) == 0.0
+    assert MOTIONS[0].mean_angular_velocity(0.3, 0.3) == 0.0
     np.testing.assert_array_equal(MOTIONS[1].mean_linear_velocity(0.3, 0.3), np.zeros(3))
 
 
@@ -60,3 +64,14 @@ def test_contacts_over_a_step_carry_the_mean_velocity_and_the_end_s_walls():
     assert len(lid.contacts(points, 0.005, 0.1, step_end=0.14).point_idx) == 0
     assert len(lid.contacts(points, 0.005, 0.1, step_end=0.12).point_idx) == 0  # gone at 0.12 s
     assert len(lid.contacts(points, 0.005, 0.08, step_end=0.11).point_idx) == 2
+
+
+def test_a_drum_reversing_mid_step_carries_the_net_turn_over_the_step():
+    points = torch.tensor([[0.1, 0.2, 0.001], [-0.3, 0.0, 0.002]], dtype=torch.float64)
+    back = WallMotion("rotation", axis=(0.0, 1.0, 0.0), omega=2.0, reverse_times=(0.13,))
+    walls = _floor(back)
+    over = walls.contacts(points, 0.005, 0.1, step_end=0.14)  # 30 ms forward, 10 ms back
+    at_start = walls.contacts(points, 0.005, 0.1)
+    torch.testing.assert_close(over.velocity, 0.5 * at_start.velocity)
+    after = walls.contacts(points, 0.005, 0.15)  # turning the other way at full speed
+    torch.testing.assert_close(after.velocity, -at_start.velocity, rtol=0, atol=1e-12)
