@@ -99,8 +99,10 @@ class _Collate:
         seed: int,
         correct_positions: bool = False,
         augment: bool = False,
+        offset_std: float = 0.0,
     ):
         self.sim, self.noise_std, self.seed = sim, noise_std, seed
+        self.offset_std = offset_std
         self.correct_positions = correct_positions
         self.augment = augment
 
@@ -108,13 +110,14 @@ class _Collate:
         graphs = []
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
-            if self.noise_std > 0:
+            if self.noise_std > 0 or self.offset_std > 0:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
                     self.noise_std,
                     resample_at_walls=True,
                     generator=torch.Generator().manual_seed(key),
                     correct_positions=self.correct_positions,
+                    offset_std=self.offset_std,
                 )
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
@@ -148,6 +151,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         noise_target: ``"velocity"`` (GNS: the target keeps the last position's noise, the
             model learns to correct velocities) or ``"position"`` (the clean target: the model
             also learns to undo position noise, i.e. to push pressed particles apart).
+        offset_noise_std: a displacement (m, std per axis) held over a window's whole history,
+            velocities clean, target clean: the model learns to push a particle displaced at
+            rest back (see :class:`~granular_pyg.transforms.AddRandomWalkNoise`).
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -171,6 +177,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         num_workers: int = 0,
         noise_std: float = 0.0,
         noise_target: str = "velocity",
+        offset_noise_std: float = 0.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         trajectories: dict | None = None,
@@ -186,6 +193,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.batch_size = whole_number("data.batch_size (windows per batch)", batch_size, 1)
         self.num_workers = whole_number("data.num_workers", num_workers)
         self.noise_std = finite_number("data.noise_std", noise_std, minimum=0.0)
+        self.offset_noise_std = finite_number(
+            "data.offset_noise_std", offset_noise_std, minimum=0.0
+        )
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
@@ -243,11 +253,18 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.sim = sim
 
     def _loader(
-        self, dataset, num_samples, shuffle: bool, noise: float, augment: bool = False, **kwargs
+        self,
+        dataset,
+        num_samples,
+        shuffle: bool,
+        noise: float,
+        augment: bool = False,
+        offset: float = 0.0,
+        **kwargs,
     ) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
-        collate = _Collate(self.sim, noise, self.seed, self.correct_positions, augment)
+        collate = _Collate(self.sim, noise, self.seed, self.correct_positions, augment, offset)
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,
@@ -271,6 +288,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             True,
             self.noise_std,
             self.augment,
+            self.offset_noise_std,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

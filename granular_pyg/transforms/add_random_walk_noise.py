@@ -26,6 +26,12 @@ class AddRandomWalkNoise(BaseTransform):
     the position noise as well: to push apart particles that the noise pressed into each other
     (granular contacts, unlike GNS's fluids, have a hard core).
 
+    ``offset_std`` adds a displacement held over the whole history (std per axis, m): the
+    velocities stay clean and the target stays the clean next position, so the model learns to
+    push a particle displaced at rest back from the geometry alone (a bed's stiffness: without
+    it, a model trained on the random walk answers a particle held 0.5 mm into a lid with
+    0.001 m/s^2).
+
     With ``walls`` set, a particle whose noisy current position lies on the other side of a
     wall triangle within ``wall_check`` than its clean position gets fresh noise, up to
     ``max_tries`` times, then none (BGNN resamples noise that would push a particle through a
@@ -37,10 +43,12 @@ class AddRandomWalkNoise(BaseTransform):
     Args:
         std: :math:`\sigma`, noise std of the last velocity as a displacement per step (m).
         resample_at_walls: resample noise that crosses a wall (needs ``data.walls``).
-        wall_check: distance (m) within which triangles are checked; default ``100 * std``.
+        wall_check: distance (m) within which triangles are checked; default 100 times the
+            larger of ``std`` and ``offset_std``.
         max_tries: resampling rounds before giving up (noise zero for those particles).
         generator: optional ``torch.Generator`` for reproducible noise.
         correct_positions: keep the clean target (learn to undo position noise too).
+        offset_std: std (m) of the displacement held over the history, never in the target.
     """
 
     def __init__(
@@ -51,12 +59,16 @@ class AddRandomWalkNoise(BaseTransform):
         max_tries: int = 5,
         generator: torch.Generator | None = None,
         correct_positions: bool = False,
+        offset_std: float = 0.0,
     ) -> None:
-        if not (std >= 0 and math.isfinite(std)):
-            raise InputError(f"std: expected a finite noise level >= 0 (m), got {std!r}")
+        for name, value in (("std", std), ("offset_std", offset_std)):
+            if not (value >= 0 and math.isfinite(value)):
+                raise InputError(f"{name}: expected a finite noise level >= 0 (m), got {value!r}")
         self.std = float(std)
+        self.offset_std = float(offset_std)
         self.resample_at_walls = bool(resample_at_walls)
-        self.wall_check = float(wall_check) if wall_check is not None else 100.0 * self.std
+        reach = 100.0 * max(self.std, self.offset_std)
+        self.wall_check = float(wall_check) if wall_check is not None else reach
         self.max_tries = int(max_tries)
         self.generator = generator
         self.correct_positions = bool(correct_positions)
@@ -64,11 +76,13 @@ class AddRandomWalkNoise(BaseTransform):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(std={self.std}, resample_at_walls={self.resample_at_walls}, "
-            f"correct_positions={self.correct_positions})"
+            f"correct_positions={self.correct_positions}, offset_std={self.offset_std})"
         )
 
-    def _walk(self, shape, like: torch.Tensor) -> torch.Tensor:
-        """``[N, H + 1, 3]`` position noise: zero at the oldest frame, a random walk after."""
+    def _walk(self, shape, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``([N, H + 1, 3], [N, 1, 3])``: the random walk (zero at the oldest frame) and the
+        held offset (zeros without ``offset_std``, drawing nothing: the walk's draws are as
+        before)."""
         num, steps = shape[0], shape[1] - 1
         step_std = self.std / math.sqrt(max(steps, 1))
         increments = torch.randn(
@@ -76,7 +90,13 @@ class AddRandomWalkNoise(BaseTransform):
         )
         velocity_noise = torch.cumsum(increments * step_std, dim=1)
         position_noise = torch.cumsum(velocity_noise, dim=1)
-        return torch.cat([like.new_zeros((num, 1, 3)), position_noise], dim=1)
+        walk = torch.cat([like.new_zeros((num, 1, 3)), position_noise], dim=1)
+        offset = like.new_zeros((num, 1, 3))
+        if self.offset_std > 0:
+            offset = self.offset_std * torch.randn(
+                (num, 1, 3), generator=self.generator, dtype=like.dtype, device=like.device
+            )
+        return walk, offset
 
     def _crossing(self, data: Data, clean: torch.Tensor, noisy: torch.Tensor) -> torch.Tensor:
         """``[N]`` bool: the noisy position is across a near triangle's plane from the clean."""
@@ -91,18 +111,18 @@ class AddRandomWalkNoise(BaseTransform):
 
     def forward(self, data: Data) -> Data:
         seq = data.pos_seq
-        noise = self._walk(seq.shape, seq)
-        if self.resample_at_walls and self.std > 0:
+        walk, offset = self._walk(seq.shape, seq)
+        if self.resample_at_walls and (self.std > 0 or self.offset_std > 0):
             clean = seq[:, -1]
-            redo = self._crossing(data, clean, clean + noise[:, -1])
+            redo = self._crossing(data, clean, clean + walk[:, -1] + offset[:, -1])
             for _ in range(self.max_tries):
                 if not bool(redo.any()):
                     break
-                noise[redo] = self._walk((int(redo.sum()), seq.shape[1]), seq)
-                redo = redo & self._crossing(data, clean, clean + noise[:, -1])
-            noise[redo] = 0.0
-        data.pos_seq = seq + noise
+                walk[redo], offset[redo] = self._walk((int(redo.sum()), seq.shape[1]), seq)
+                redo = redo & self._crossing(data, clean, clean + walk[:, -1] + offset[:, -1])
+            walk[redo], offset[redo] = 0.0, 0.0
+        data.pos_seq = seq + walk + offset
         data.pos = data.pos_seq[:, -1]
         if "target_pos" in data and not self.correct_positions:
-            data.target_pos = data.target_pos + noise[:, -1]
+            data.target_pos = data.target_pos + walk[:, -1]
         return data

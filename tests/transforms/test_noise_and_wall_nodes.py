@@ -56,6 +56,30 @@ def test_correcting_positions_keeps_the_clean_target():
     torch.testing.assert_close(a.target_pos - b.target_pos, a.pos_seq[:, -1] - seq[:, -1])
 
 
+def test_a_held_offset_moves_every_frame_alike_and_never_the_target():
+    """``offset_std``: one displacement per particle over the whole history, so the velocities
+    stay clean and the target stays the clean next position (push a displaced particle back);
+    without it the walk's draws are bit for bit those of before."""
+    seq = _sequence(4000)
+    target = seq[:, -1] + 1e-4
+    data = AddRandomWalkNoise(0.0, generator=torch.Generator().manual_seed(3), offset_std=2e-4)(
+        Data(pos_seq=seq.clone(), target_pos=target.clone())
+    )
+    shift = data.pos_seq - seq
+    torch.testing.assert_close(shift, shift[:, :1].expand_as(shift), rtol=0, atol=1e-17)
+    assert float(shift[:, 0].std()) == pytest.approx(2e-4, rel=0.03)
+    assert torch.equal(data.target_pos, target)  # velocity target or not, the offset is undone
+    both = AddRandomWalkNoise(3e-5, generator=torch.Generator().manual_seed(1), offset_std=2e-4)
+    walk = AddRandomWalkNoise(3e-5, generator=torch.Generator().manual_seed(1))
+    with_offset = both(Data(pos_seq=seq.clone(), target_pos=target.clone()))
+    alone = walk(Data(pos_seq=seq.clone(), target_pos=target.clone()))
+    offset = (with_offset.pos_seq - alone.pos_seq)[:, :1]
+    torch.testing.assert_close(with_offset.pos_seq, alone.pos_seq + offset, rtol=0, atol=1e-17)
+    torch.testing.assert_close(with_offset.target_pos, alone.target_pos, rtol=0, atol=0)
+    with pytest.raises(InputError, match="offset_std"):
+        AddRandomWalkNoise(1e-5, offset_std=-1.0)
+
+
 def test_noise_target_must_be_velocity_or_position():
     from granular_pyg.training import TrajectoryDataModule
 
@@ -78,15 +102,19 @@ def test_noise_never_pushes_a_particle_through_a_wall_when_resampling():
     pos = torch.cat([xy * torch.tensor([0.015, 0.025]), torch.full((num, 1), 1e-4)], 1)
     seq = pos[:, None, :].repeat(1, 6, 1)
 
-    def crossed(resample: bool) -> int:
+    def crossed(resample: bool, std: float = 2e-4, offset_std: float = 0.0) -> int:
         noise = AddRandomWalkNoise(
-            2e-4, resample_at_walls=resample, generator=torch.Generator().manual_seed(2)
+            std,
+            resample_at_walls=resample,
+            generator=torch.Generator().manual_seed(2),
+            offset_std=offset_std,
         )
         out = noise(Data(pos_seq=seq.clone(), walls=walls, time=0.0))
         return int((out.pos[:, 2] < 0).sum())
 
     assert crossed(False) > 100
     assert crossed(True) == 0
+    assert crossed(False, 0.0, 2e-4) > 100 and crossed(True, 0.0, 2e-4) == 0  # a held offset
 
 
 def test_wall_nodes_none_when_no_triangle_is_near():
