@@ -1,0 +1,18 @@
+"""tools.rest_stiffness: a shipped model's answer to particles held displaced at rest."""
+
+from __future__ import annotations
+
+import math
+import re
+
+from tools.rest_stiffness import DELTAS_M, main
+
+
+def test_it_prints_the_bias_and_one_finite_change_per_displacement_for_both_sets(capsys):
+    main(["pretrained:fast_hopper", "sample:hopper"])
+    lines = capsys.readouterr().out.splitlines()
+    assert re.search(r"bias a_z [+-]\d+\.\d{3} m/s\^2", lines[0])
+    for name, line in zip(("lowest", "middle"), lines[1:], strict=True):
+        assert line.strip().startswith(name)
+        changes = [float(v) for v in re.findall(r"mm: ([+-]\d+\.\d+)", line)]
+        assert len(changes) == len(DELTAS_M) and all(math.isfinite(c) for c in changes)

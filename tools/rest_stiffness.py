@@ -1,0 +1,65 @@
+"""``python -m tools.rest_stiffness <ckpt> <trajectory>`` (from the checkout's root): does a
+model push a particle displaced at rest back?
+
+The trajectory's first frame is held still (``held_still``: velocities zero, walls never moving
+or removed). Two sets of 40 particles, the lowest (on the floor or lid) and a random 40 of the
+middle third by height, are then held displaced by ``delta`` along z over the whole history (at
+rest, displaced) and the first learned step's vertical acceleration of those particles is read.
+Printed: the bed's bias (mean a_z undisplaced, m/s^2) and, per ``delta`` in +-0.1, 0.2, 0.5 mm,
+the change of the set's mean a_z (m/s^2). A restoring model answers with the opposite sign,
+growing with ``|delta|``; a dead-beat correction within one step is ``-delta / dt^2``
+(0.31 m/s^2 for 0.5 mm at dt = 40 ms).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+import numpy as np
+import torch
+
+from granular_pyg.bench.trajectories import resolve_trajectory
+from granular_pyg.evaluation.variants import held_still
+from granular_pyg.inference import load_simulator, rollout_trajectory
+
+DELTAS_M = (-5e-4, -2e-4, -1e-4, 1e-4, 2e-4, 5e-4)
+
+
+def _first_step_acceleration(sim, traj) -> np.ndarray:
+    """``[N, 3]`` (m/s^2): the first learned step's acceleration from ``traj``'s history."""
+    with torch.inference_mode():
+        pos = rollout_trajectory(sim, traj, steps=1, progress=False).positions.astype(np.float64)
+    return (pos[-1] - 2 * pos[-2] + pos[-3]) / float(sim.dt) ** 2
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("ckpt", help="a checkpoint or pretrained:<name>")
+    parser.add_argument("trajectory", help="a trajectory file or sample:hopper / sample:drum")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    sim, _ = load_simulator(args.ckpt)
+    rest = held_still(resolve_trajectory(args.trajectory), 0.5)
+    height = rest.positions[0][:, 2]
+    order = np.argsort(height)
+    third = len(order) // 3
+    sets = {
+        "lowest": order[:40],
+        "middle": np.random.default_rng(0).choice(order[third : 2 * third], 40, replace=False),
+    }
+    base = _first_step_acceleration(sim, rest)
+    print(f"{args.ckpt}: bias a_z {base[:, 2].mean():+.3f} m/s^2 (dt {float(sim.dt):g} s)")
+    for name, idx in sets.items():
+        changes = []
+        for delta in DELTAS_M:
+            pos = rest.positions.copy()
+            pos[:, idx, 2] += delta
+            acc = _first_step_acceleration(sim, dataclasses.replace(rest, positions=pos))
+            change = acc[idx, 2].mean() - base[idx, 2].mean()
+            changes.append(f"{1e3 * delta:+.1f} mm: {change:+.3f}")
+        print(f"  {name} 40 held displaced, change of a_z (m/s^2): " + ", ".join(changes))
+
+
+if __name__ == "__main__":
+    main()
