@@ -189,6 +189,12 @@ def _move_style(wall: Wall, sense: float = 1.0) -> str | None:
     return None
 
 
+def _move_fix(wall: Wall, sense: float = 1.0) -> str:
+    """The ``fix move/mesh`` command that moves ``wall`` (turning the other way for
+    ``sense = -1``)."""
+    return f"fix move_{wall.name} all move/mesh mesh wall_{wall.name} {_move_style(wall, sense)}"
+
+
 def _events(scene: Scene) -> list[tuple[float, list[str]]]:
     """Wall events in recorded time, each with the commands that enact it.
 
@@ -199,29 +205,23 @@ def _events(scene: Scene) -> list[tuple[float, list[str]]]:
     starts: dict[float, list[str]] = {}
     removals: dict[float, list[str]] = {}
     for wall in scene.walls:
-        style = _move_style(wall)
-        if style is None:
+        if _move_style(wall) is None:
             continue
         m, gone = wall.motion, wall.removal_time
         start = max(0.0, m.start_time)
         if gone is not None and start >= gone:
             continue  # removed before it would move
-        starts.setdefault(start, []).append(
-            f"fix move_{wall.name} all move/mesh mesh wall_{wall.name} {style}"
-        )
+        starts.setdefault(start, []).append(_move_fix(wall))
         stop = m.stop_time
         if gone is not None and (stop is None or stop > gone):
             stop = gone
         if stop is not None and stop < scene.duration:
             stops.setdefault(stop, []).append(f"unfix move_{wall.name}")
         # A reversal: the fix is replaced by one turning the other way from the pose reached.
-        end = min(scene.duration, math.inf if stop is None else stop)
+        end = scene.duration if stop is None else min(stop, scene.duration)
         for k, flip in enumerate(t for t in m.reverse_times if t < end):
             stops.setdefault(flip, []).append(f"unfix move_{wall.name}")
-            starts.setdefault(flip, []).append(
-                f"fix move_{wall.name} all move/mesh mesh wall_{wall.name} "
-                f"{_move_style(wall, -1.0 if k % 2 == 0 else 1.0)}"
-            )
+            starts.setdefault(flip, []).append(_move_fix(wall, -1.0 if k % 2 == 0 else 1.0))
     for wall in scene.walls:
         if wall.removal_time is not None:
             removals.setdefault(wall.removal_time, []).extend(
