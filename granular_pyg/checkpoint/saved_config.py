@@ -27,6 +27,7 @@ _ADDED = {
     ("model", "radius_feature"): False,
     ("model", "material_features"): [],
     ("model", "contact_feature"): False,
+    ("model", "overlap_feature"): False,
     ("model", "wall_nodes"): "triangle",  # the paper's wall nodes, before surface patches
     ("model", "walls_over_step"): False,  # the walls at a step's start
     ("data", "augment"): False,  # windows in the recorded frame, before turns and mirrors

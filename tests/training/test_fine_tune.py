@@ -113,3 +113,59 @@ def test_the_card_of_a_fine_tuned_model_covers_both_datasets():
     assert data["scene_kinds"] == ["hopper", "mesh"]
     assert data["trajectories"] == 6
     assert card["dt_s"] == 0.02 and card["fine_tuned_from"] == "pretrained:hopper"
+
+
+def test_fine_tuning_can_add_the_overlap_input_and_starts_from_the_initial_model(tmp_path):
+    """``model.overlap_feature=true`` on a model trained without it: the edge encoder grows one
+    zero column, so the grown model's first prediction is the initial model's exactly, with
+    overlaps present in the window; removing the input is refused."""
+    from granular_pyg.io import read_trajectory
+    from granular_pyg.samples import sample_files
+    from granular_pyg.scenes import WallSet
+    from granular_pyg.simulator import ParticleProps
+
+    overrides = ["model.overlap_feature=true"]
+    cfg, ckpt = with_initial_model(compose("train", [*FINETUNE, *overrides]), overrides)
+    assert cfg.model.overlap_feature is True and not ckpt["config"]["model"]["overlap_feature"]
+    cfg = compose(
+        "train",
+        [
+            *FINETUNE,
+            *overrides,
+            "trainer.max_steps=1",
+            "optim.lr=1e-12",
+            "optim.lr_final=1e-12",
+            "checkpoint.every_n_train_steps=1",
+            "rollout_validation.every_n_epochs=1000",
+        ],
+    )
+    from unittest import mock
+
+    with mock.patch("granular_pyg.train.task_overrides", return_value=overrides):
+        train(cfg, tmp_path)
+    grown, grown_cfg = load_simulator(tmp_path / "checkpoints" / "last.ckpt")
+    initial, _ = load_simulator("pretrained:hopper")
+    assert grown_cfg["model"]["overlap_feature"] is True
+    w_grown = grown.model.edge_encoder[0].weight
+    w_initial = initial.model.edge_encoder[0].weight
+    assert w_grown.shape[1] == w_initial.shape[1] + 1
+    assert torch.allclose(w_grown[:, :-1], w_initial, rtol=0, atol=1e-9)
+    assert w_grown[:, -1].abs().max() < 1e-9
+
+    traj = read_trajectory(sample_files("hopper")[0])
+    window = torch.from_numpy(traj.positions[:6]).permute(1, 0, 2).contiguous()
+    props = ParticleProps.of(traj)
+    walls, t = WallSet(traj.scene), float(traj.times[5])
+    graph = grown.build_graph(window, walls, t, props=props)
+    assert (graph.edge_attr[:, -1] > 0).any()  # the settled bed has overlaps
+    with torch.no_grad():
+        a = grown.predict_acceleration(window, walls, t, props=props)
+        b = initial.predict_acceleration(window, walls, t, props=props)
+    torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+
+    with pytest.raises(InputError, match=r"can add an input but not remove one"):
+        with_initial_model(
+            compose("train", [*FINETUNE, f"init={tmp_path / 'checkpoints' / 'last.ckpt'}",
+                              "model.overlap_feature=false"]),
+            ["model.overlap_feature=false"],
+        )  # fmt: skip
