@@ -206,3 +206,38 @@ def test_turned_scene_turns_normals_and_motion():
         va = a.contacts(pts, 0.01, 0.5).velocity
         vb = b.contacts(pts @ q.T, 0.01, 0.5).velocity
         assert torch.allclose(vb.mean(0), va.mean(0) @ q.T, atol=1e-12)
+
+
+def test_a_turned_or_mirrored_drum_that_reverses_keeps_its_reversal():
+    """A drum that turns back at 0.3 s, turned about z or mirrored: its reversal times are
+    kept, the wall's pose at every time is the turned pose, and the wall velocity at a
+    turned point is the turned velocity before and after the reversal (the mirror flips the
+    sense of both legs)."""
+    from granular_pyg.scenes import make_drum
+
+    drum = make_drum(spin_reverse=0.3)
+    motion = drum.walls[0].motion
+    assert tuple(motion.reverse_times) == (0.3,)
+    pts = torch.tensor([[0.0, 0.0, -0.045], [0.03, 0.01, 0.02]], dtype=torch.float64)
+    for q in FRAMES:
+        moved = turned_scene(drum, q)
+        assert tuple(moved.walls[0].motion.reverse_times) == (0.3,)
+        a, b = WallSet(drum), WallSet(moved)
+        qn = q.numpy()
+        for t in (0.1, 0.29, 0.31, 0.6):
+            rot_a, trans_a = motion.pose(t)
+            rot_b, trans_b = moved.walls[0].motion.pose(t)
+            vertices, turned = drum.walls[0].vertices, moved.walls[0].vertices
+            np.testing.assert_allclose(
+                turned @ rot_b.T + trans_b,
+                (vertices @ rot_a.T + trans_a) @ qn.T,
+                atol=1e-12,
+            )
+            va = a.contacts(pts, 0.01, t).velocity
+            vb = b.contacts(pts @ q.T, 0.01, t).velocity
+            assert va.shape[0] > 0 and va.abs().max() > 1e-3
+            assert torch.allclose(vb, va @ q.T, atol=1e-12), (q, t)
+        # the reversal shows: the velocity at a point flips sign across it
+        before = a.contacts(pts, 0.01, 0.29).velocity
+        after = a.contacts(pts, 0.01, 0.31).velocity
+        assert torch.allclose(after, -before, atol=1e-12)
