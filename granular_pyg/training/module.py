@@ -12,6 +12,7 @@ from torch_geometric.data import Batch
 from granular_pyg.errors import positive_number
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives import Mixture, Objective, OneStep, masked_mse
+from granular_pyg.training.weight_average import WeightAverage
 
 __all__ = ["SimulatorModule"]
 
@@ -26,6 +27,12 @@ class SimulatorModule(L.LightningModule):
     drawn from a generator seeded by ``(seed, global step)``, and the RNG states (python, numpy,
     torch) are saved in checkpoints and restored on resume, so a resumed run continues exactly.
 
+    With ``ema_decay`` the model's weights are also averaged over the optimiser steps
+    (:class:`~granular_pyg.training.weight_average.WeightAverage`); validation runs with the
+    average, and a checkpoint's ``state_dict`` holds the average (what evaluation, rollouts,
+    export and fine-tuning load) with the raw weights under ``raw_weights`` for an exact
+    resume.
+
     Args:
         simulator: the model.
         objective: the training loss (None: one-step).
@@ -33,6 +40,8 @@ class SimulatorModule(L.LightningModule):
         lr_final: asymptotic learning rate.
         decay_steps: optimiser steps per factor-10 decay.
         seed: seed of the objective's draws.
+        ema_decay: decay of the weight average (0.999: about the last 1,000 steps); 0 for
+            none.
     """
 
     def __init__(
@@ -43,6 +52,7 @@ class SimulatorModule(L.LightningModule):
         lr_final: float = 1e-6,
         decay_steps: float = 1e5,
         seed: int = 0,
+        ema_decay: float = 0.0,
     ) -> None:
         super().__init__()
         self.sim = simulator
@@ -51,6 +61,8 @@ class SimulatorModule(L.LightningModule):
         self.lr_final = positive_number("optim.lr_final", lr_final)
         self.decay_steps = positive_number("optim.decay_steps", decay_steps)
         self.seed = int(seed)
+        self.average = WeightAverage(ema_decay) if ema_decay else None
+        self._raw: dict[str, torch.Tensor] | None = None  # the raw weights while validating
 
     def forward(self, batch: Batch) -> torch.Tensor:
         return self.sim(batch)
@@ -90,6 +102,31 @@ class SimulatorModule(L.LightningModule):
         name = type(objective).__name__
         return "".join(f"_{c.lower()}" if c.isupper() else c for c in name).lstrip("_")
 
+    def optimizer_step(self, *args, **kwargs) -> None:
+        """The optimiser's step, then the average's (before any checkpoint of the step)."""
+        super().optimizer_step(*args, **kwargs)
+        if self.average is not None:
+            self.average.update(self.sim)
+
+    def on_validation_start(self) -> None:
+        """Validate (losses and rollouts) with the averaged weights."""
+        if self.average is not None and self.average.params is not None:
+            self._raw = self._parameters_now()
+            self._put(self.average.params)
+
+    def on_validation_end(self) -> None:
+        if self._raw is not None:
+            self._put(self._raw)
+            self._raw = None
+
+    def _parameters_now(self) -> dict[str, torch.Tensor]:
+        return {name: p.detach().clone() for name, p in self.sim.named_parameters()}
+
+    @torch.no_grad()
+    def _put(self, params: dict[str, torch.Tensor]) -> None:
+        for name, p in self.sim.named_parameters():
+            p.copy_(params[name])
+
     def validation_step(self, batch: Batch, batch_idx: int) -> torch.Tensor:
         loss = masked_mse(self.sim(batch), batch.y)
         self.log("val/loss", loss, prog_bar=True, batch_size=batch.num_graphs, sync_dist=True)
@@ -116,8 +153,23 @@ class SimulatorModule(L.LightningModule):
             "numpy": (kind, torch.from_numpy(keys.copy()), int(pos), int(has_gauss), float(cached)),
             "torch": torch.get_rng_state(),
         }
+        if self.average is not None and self.average.params is not None:
+            raw = self._raw if self._raw is not None else self._parameters_now()
+            state = checkpoint["state_dict"]
+            checkpoint["raw_weights"] = {f"sim.{k}": v.detach().clone() for k, v in raw.items()}
+            for name, value in self.average.params.items():
+                state[f"sim.{name}"] = value.detach().clone()
 
     def on_load_checkpoint(self, checkpoint: dict) -> None:
+        # Before the state dict is loaded: the run goes on from its raw weights, the average
+        # from the saved (averaged) ones; without ema_decay now, the average is dropped.
+        raw = checkpoint.pop("raw_weights", None)
+        if raw is not None:
+            state = checkpoint["state_dict"]
+            if self.average is not None:
+                averaged = {k[len("sim.") :]: state[k] for k in raw}
+                self.average.load(averaged, self.sim)
+            state.update(raw)
         states = checkpoint.get("rng_states")
         if states:
             random.setstate(states["python"])
