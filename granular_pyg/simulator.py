@@ -20,10 +20,7 @@ feature mismatch is the classic silent bug of learned simulators). For one time 
 - edge features ``[4]`` for an edge ``j -> i``: ``(x_i - x_j) / R`` and ``|x_i - x_j| / R``;
   with the model option ``contact_feature`` a fifth, the distance in units of the contact
   distance, ``|x_i - x_j| / (r_i + r_j)`` (``r`` 0 for a wall node): 1 where two particles
-  touch or a particle touches a wall, whatever the particles' size; with ``overlap_feature``
-  one more, the overlap ``max(0, 1 - |x_i - x_j| / (r_i + r_j)) / OVERLAP_UNIT``: 0 apart,
-  1 at an overlap of :data:`OVERLAP_UNIT` of the contact distance (the push back of a bed
-  at rest reads it at full gain, see :data:`OVERLAP_UNIT`).
+  touch or a particle touches a wall, whatever the particles' size.
 
 With the equivariant processor (``model/processor=equivariant``,
 :class:`~granular_pyg.nn.HorizontalEquivariantProcessor`) the same quantities enter split into
@@ -171,11 +168,6 @@ NUM_DIMS = 3
 NUM_TYPES = 2  # particle, wall
 NUM_NORMAL_FEATURES = 6
 NUM_EDGE_FEATURES = 4
-#: Overlap (fraction of the contact distance ``r_i + r_j``) that the ``overlap_feature`` input
-#: reads as 1. A settled bed must stay within about a tenth of a radius (0.3 mm on 1-2 mm
-#: radii): a particle pushed that far into a neighbour or a wall, 5% of the contact
-#: distance, gives an input change of order one, where the contact column changes by 0.05.
-OVERLAP_UNIT = 0.05
 
 
 #: Precisions of the network at inference: ``"32"`` (float32) or ``"bf16"`` (the matrix
@@ -204,10 +196,6 @@ class LearnedSimulator(nn.Module):
             (keys of :data:`MATERIAL_FEATURES`, scaled by it), the same on every node.
         contact_feature: one more edge input: the edge's length over its contact distance
             (the two radii summed; a wall node's radius 0), 1 at contact for any particle size.
-        overlap_feature: one more edge input (after the contact column, if any): the overlap
-            ``max(0, 1 - length / contact distance) / OVERLAP_UNIT``, 0 for particles apart.
-            Fine-tuning may switch it on for a model trained without it: its weights start at
-            zero, so training starts from that model exactly.
         wall_nodes: ``"triangle"`` (a wall node per nearby triangle, the paper's) or
             ``"patch"`` (per nearby surface patch, independent of the triangulation; see
             :class:`~granular_pyg.transforms.AddWallNodes`).
@@ -219,8 +207,7 @@ class LearnedSimulator(nn.Module):
             learns their average, a bed that sinks through a closed lid or creeps in a drum at
             rest.
 
-    With ``radius_feature``, ``contact_feature``, ``overlap_feature`` or ``material_features``
-    the graph needs a
+    With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
     :meth:`rollout`); without them a model ignores it and is exactly the model without these
     options.
@@ -242,7 +229,6 @@ class LearnedSimulator(nn.Module):
         material_features: Iterable[str] = (),
         contact_feature: bool = False,
         wall_nodes: str = "triangle",
-        overlap_feature: bool = False,
         walls_over_step: bool = False,
     ) -> None:
         super().__init__()
@@ -266,23 +252,20 @@ class LearnedSimulator(nn.Module):
                 f"model.material_features: expected distinct names among "
                 f"{list(MATERIAL_FEATURES)}, got {list(names)}"
             )
-        for name, value in (
-            ("contact_feature", contact_feature),
-            ("overlap_feature", overlap_feature),
-        ):
-            if not isinstance(value, bool):
-                raise InputError(f"model.{name}: expected true or false, got {value!r}")
+        if not isinstance(contact_feature, bool):
+            raise InputError(
+                f"model.contact_feature: expected true or false, got {contact_feature!r}"
+            )
         if not isinstance(walls_over_step, bool):
             raise InputError(
                 f"model.walls_over_step: expected true or false, got {walls_over_step!r}"
             )
         self.walls_over_step = walls_over_step
         self.radius_feature, self.material_features = radius_feature, names
-        self.contact_feature, self.overlap_feature = contact_feature, overlap_feature
+        self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
         self.wall_nodes = AddWallNodes(radius, normals, wall_weight, wall_nodes)
         extra_in = int(self.radius_feature) + len(self.material_features)
-        extra_edge_in = int(self.contact_feature) + int(self.overlap_feature)
         self.equivariant = isinstance(processor, HorizontalEquivariantProcessor)
         if self.equivariant:
             if processor.latent != latent:
@@ -292,13 +275,13 @@ class LearnedSimulator(nn.Module):
                 )
             h = self.history
             node_in = h + h * (h + 1) // 2 + 2 + NUM_TYPES + extra_in
-            edge_in = 4 + extra_edge_in
+            edge_in = 4 + int(self.contact_feature)
             self.model = HorizontalEquivariantNetwork(
                 node_in, h + 1, edge_in, processor, mlp_layers
             )
         else:
             node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES + extra_in
-            edge_in = NUM_EDGE_FEATURES + extra_edge_in
+            edge_in = NUM_EDGE_FEATURES + int(self.contact_feature)
             self.model = EncodeProcessDecode(
                 node_in, edge_in, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
             )
@@ -375,14 +358,9 @@ class LearnedSimulator(nn.Module):
 
     @property
     def uses_props(self) -> bool:
-        """Whether the features need a :class:`ParticleProps` (radius, contact, overlap or
-        material inputs)."""
-        return self.uses_radii or bool(self.material_features)
-
-    @property
-    def uses_radii(self) -> bool:
-        """Whether the features need the particles' radii."""
-        return self.radius_feature or self.contact_feature or self.overlap_feature
+        """Whether the features need a :class:`ParticleProps` (radius, contact or material
+        inputs)."""
+        return self.radius_feature or self.contact_feature or bool(self.material_features)
 
     def _check_props(self, props: ParticleProps | None, num: int) -> None:
         """Refuse a missing or mis-sized ``props`` when the options need it (no-op otherwise)."""
@@ -391,7 +369,7 @@ class LearnedSimulator(nn.Module):
         if props is None:
             options = [
                 f"model.{name}=true"
-                for name in ("radius_feature", "contact_feature", "overlap_feature")
+                for name in ("radius_feature", "contact_feature")
                 if getattr(self, name)
             ]
             if self.material_features:
@@ -408,7 +386,7 @@ class LearnedSimulator(nn.Module):
             raise InputError(
                 f"props: {len(props)} radii for {num} particles; give one per row of pos_seq"
             )
-        if self.uses_radii:
+        if self.radius_feature or self.contact_feature:
             radius = props.radius
             if not bool((torch.isfinite(radius) & (radius > 0)).all()):
                 raise InputError("props.radius: every radius must be finite and positive (m)")
@@ -526,8 +504,9 @@ class LearnedSimulator(nn.Module):
             x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)
         src, dst = data.edge_index
         disp = (rel[dst] - rel[src]) / self.radius
-        length = torch.linalg.vector_norm(disp, dim=1, keepdim=True)
-        edge_attr = torch.cat([disp, length, *self._contact_columns(length, src, dst, props)], 1)
+        edge_attr = torch.cat([disp, torch.linalg.vector_norm(disp, dim=1, keepdim=True)], 1)
+        if self.contact_feature:
+            edge_attr = torch.cat([edge_attr, self._contact_column(edge_attr, src, dst, props)], 1)
         dtype = self.vel_mean.dtype  # float32 (a no-op), or float64 for a model turned to double
         return Data(
             x=x.to(dtype),
@@ -592,10 +571,11 @@ class LearnedSimulator(nn.Module):
                 disp[:, 2:],
                 length,
                 along,
-                *self._contact_columns(length, src, dst, props),
             ],
             dim=1,
         )
+        if self.contact_feature:
+            edge_attr = torch.cat([edge_attr, self._contact_column(length, src, dst, props)], 1)
         return Data(
             x=x,
             vec=vec,
@@ -606,25 +586,19 @@ class LearnedSimulator(nn.Module):
             num_real=num_real,
         )
 
-    def _contact_columns(
-        self, length: torch.Tensor, src: torch.Tensor, dst: torch.Tensor, props: ParticleProps
-    ) -> list[torch.Tensor]:
-        """The optional contact inputs, each ``[E, 1]``: with ``contact_feature`` the edge's
-        length over its contact distance ``r_i + r_j`` (a wall node's ``r`` is 0; every edge
-        ends at a particle, so the sum is positive), then with ``overlap_feature`` the overlap
-        ``max(0, 1 - length / contact) / OVERLAP_UNIT``; ``length [E, 1]`` is in units of
-        ``R``. An empty list without either option."""
-        if not (self.contact_feature or self.overlap_feature):
-            return []
-        radius = props.radius.to(length.device, length.dtype)
+    def _contact_column(
+        self, edge_attr: torch.Tensor, src: torch.Tensor, dst: torch.Tensor, props: ParticleProps
+    ) -> torch.Tensor:
+        """``[E, 1]``: each edge's length over its contact distance ``r_i + r_j`` (a wall
+        node's ``r`` is 0; every edge ends at a particle, so the sum is positive). The edge's
+        length over ``R`` is ``edge_attr[:, 3]``, or ``edge_attr[:, 0]`` for a one-column
+        ``edge_attr``."""
+        radius = props.radius.to(edge_attr.device, edge_attr.dtype)
         num_real = radius.shape[0]
         sender = torch.where(src < num_real, radius[src.clamp(max=num_real - 1)], 0.0)
         contact = (sender + radius[dst]) / self.radius  # in the cut-off's units, like the length
-        ratio = length / contact.unsqueeze(1)
-        columns = [ratio] if self.contact_feature else []
-        if self.overlap_feature:
-            columns.append((1.0 - ratio).clamp(min=0.0) / OVERLAP_UNIT)
-        return columns
+        length = edge_attr if edge_attr.shape[1] == 1 else edge_attr[:, 3:4]
+        return length / contact.unsqueeze(1)
 
     def _property_columns(
         self, props: ParticleProps, num_wall: int, like: torch.Tensor

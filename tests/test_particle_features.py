@@ -24,12 +24,7 @@ from granular_pyg.io import read_trajectory
 from granular_pyg.nn import Processor
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import Materials, WallSet
-from granular_pyg.simulator import (
-    MATERIAL_FEATURES,
-    OVERLAP_UNIT,
-    LearnedSimulator,
-    ParticleProps,
-)
+from granular_pyg.simulator import MATERIAL_FEATURES, LearnedSimulator, ParticleProps
 from granular_pyg.training.data_module import _Collate
 from granular_pyg.training.objectives import PushForward, Unrolled
 
@@ -102,10 +97,8 @@ def test_off_the_features_and_weights_are_todays(hopper):
 def test_the_config_defaults_are_off():
     cfg = compose("train", ["model.latent=16"])
     assert cfg.model.radius_feature is False and list(cfg.model.material_features) == []
-    assert cfg.model.contact_feature is False and cfg.model.overlap_feature is False
     sim = instantiate(cfg.model)
     assert not sim.radius_feature and sim.material_features == ()
-    assert not sim.uses_props
 
 
 # -- on: the columns ---------------------------------------------------------------------------
@@ -172,60 +165,6 @@ def test_the_contact_column_is_length_over_the_summed_radii(hopper):
     assert plain.model.edge_encoder[0].in_features == 4
 
 
-def test_the_overlap_column_reads_how_far_a_particle_is_pushed_in(hopper):
-    """Brute force per edge: max(0, 1 - |x_i - x_j| / (r_i + r_j)) / OVERLAP_UNIT after the
-    contact column, the columns before it untouched; tiny exact cases: two particles of
-    radius 1 mm, 2 mm apart (touching) read 0, pushed 0.1 mm together (5% of the contact
-    distance) read 1, apart read 0; a particle 0.5 mm into a flat wall reads 0.5 / 0.05 = 10."""
-    traj, seq, present, t = hopper
-    walls = WallSet(traj.scene)
-    n = seq.shape[0]
-    radii = torch.linspace(1e-3, 2e-3, n)
-    props = _props(traj, present, radius=radii)
-    contact = _model(contact_feature=True).build_graph(seq, walls, t, props=props)
-    sim = _model(contact_feature=True, overlap_feature=True)
-    graph = sim.build_graph(seq, walls, t, props=props)
-    assert sim.model.edge_encoder[0].in_features == 6
-    assert torch.equal(graph.edge_attr[:, :5], contact.edge_attr)
-    expected = (1.0 - contact.edge_attr[:, 4].double()).clamp(min=0) / OVERLAP_UNIT
-    torch.testing.assert_close(graph.edge_attr[:, 5].double(), expected, rtol=0, atol=1e-6)
-    assert (graph.edge_attr[:, 5] > 0).any() and (graph.edge_attr[:, 5] == 0).any()
-    # alone, it is the fifth column
-    alone = _model(overlap_feature=True).build_graph(seq, walls, t, props=props)
-    assert torch.equal(alone.edge_attr[:, 4], graph.edge_attr[:, 5])
-
-    # tiny exact cases, radius 1 mm: a pair 2 mm apart, 0.1 mm pushed together, 0.5 mm apart
-    def graph_of(x):
-        seq2 = torch.tensor(x).unsqueeze(1).expand(-1, 6, -1).contiguous()
-        props = ParticleProps(torch.full((len(x),), 1e-3))
-        sim = _model(overlap_feature=True, wall_nodes="patch")
-        return sim.build_graph(seq2, WallSet(_floor()), 0.0, props=props)
-
-    for gap, expected in ((0.0, 0.0), (-0.1e-3, 1.0), (0.5e-3, 0.0)):
-        g = graph_of([[0.0, 0.0, 0.004], [2e-3 + gap, 0.0, 0.004]])
-        pair = g.edge_index[0] < 2
-        assert int(pair.sum()) == 2
-        torch.testing.assert_close(
-            g.edge_attr[pair, 4], torch.full((2,), expected), atol=1e-4, rtol=0
-        )
-    # a particle 0.5 mm into the floor (centre 0.5 mm above it, one patch): 0.5 / 0.05 = 10
-    g = graph_of([[0.0, 0.0, 0.5e-3]])
-    assert g.edge_attr.shape[0] == 1
-    torch.testing.assert_close(g.edge_attr[:, 4], torch.tensor([10.0]), atol=1e-4, rtol=0)
-
-
-def _floor():
-    """A scene with one flat floor, z = 0, 0.1 m square (two triangles)."""
-    from granular_pyg.scenes import ParticleSpec, Scene, Wall
-
-    vertices = np.array(
-        [[-0.05, -0.05, 0.0], [0.05, -0.05, 0.0], [0.05, 0.05, 0.0], [-0.05, 0.05, 0.0]]
-    )
-    floor = Wall("floor", vertices, np.array([[0, 1, 2], [0, 2, 3]]))
-    spec = ParticleSpec(1, 0.001, (-0.01, -0.01, 0.01), (0.01, 0.01, 0.02))
-    return Scene(name="floor", kind="other", walls=[floor], particles=spec)
-
-
 def test_the_material_columns_are_the_scaled_values_on_every_node(hopper):
     traj, seq, present, t = hopper
     walls = WallSet(traj.scene)
@@ -266,12 +205,11 @@ def test_the_encoder_input_grows_by_the_columns():
 @pytest.mark.parametrize(
     "options",
     [{"material_features": ["stiffness"]}, {"material_features": ["friction", "friction"]},
-     {"radius_feature": "yes"}, {"contact_feature": 1}, {"overlap_feature": "on"}],
+     {"radius_feature": "yes"}, {"contact_feature": 1}],
 )  # fmt: skip
 def test_bad_options_are_refused(options):
     with pytest.raises(
-        InputError,
-        match=r"model\.(material_features|radius_feature|contact_feature|overlap_feature)",
+        InputError, match=r"model\.(material_features|radius_feature|contact_feature)"
     ):
         _model(**options)
 
@@ -467,3 +405,11 @@ def test_a_tiny_run_with_the_options_trains_checkpoints_and_rolls_out(tmp_path):
     assert not np.allclose(
         pred.positions[sim.history + 1], moved.positions[sim.history + 1], equal_nan=True
     )
+
+
+def test_the_contact_column_alone_adds_no_node_columns(hopper):
+    """contact_feature without radius or material inputs: an edge column, no node column."""
+    traj, seq, present, t = hopper
+    sim = _model(contact_feature=True)
+    graph = sim.build_graph(seq, WallSet(traj.scene), t, props=_props(traj, present))
+    assert graph.x.shape[1] == BASE_WIDTH and graph.edge_attr.shape[1] == 5

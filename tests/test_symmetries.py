@@ -49,7 +49,6 @@ def _sim(processor: str, normals: str, wall_nodes: str = "patch", dtype=torch.fl
         latent=24,
         dt=0.005,
         contact_feature=True,
-        overlap_feature=True,
         radius_feature=True,
         wall_nodes=wall_nodes,
     )

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from granular_pyg.checkpoint.files import read_training_checkpoint
@@ -35,12 +34,9 @@ __all__ = [
 
 #: Data settings a fine-tuning run takes over from the initial model's training run.
 INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
-#: Model keys a fine-tuning run may change: how the graph is searched, how a step sees the
-#: walls (an older model can learn to see a lid removed or a drum started during the step), and
-#: the overlap input (switched on, its weights start at zero: the initial model exactly).
-HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors", "walls_over_step", "overlap_feature")
-#: Model inputs a fine-tuning run may add, with the first-layer weight that grows a column.
-ADDABLE_INPUTS = {"overlap_feature": "model.edge_encoder.0.weight"}
+#: Model keys a fine-tuning run may change: how the graph is searched, and how a step sees the
+#: walls (an older model can learn to see a lid removed or a drum started during the step).
+HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors", "walls_over_step")
 
 
 def _read(init: str) -> dict:
@@ -81,11 +77,6 @@ def _refuse_unhonoured(overrides: Sequence[str], saved: dict, init: str) -> list
             )
         section, _, rest = key.partition(".")
         if section == "model" and rest:
-            if rest in ADDABLE_INPUTS and model.get(rest) and value.lower() != "true":
-                raise InputError(
-                    f"{override}: init={init} was trained with model.{rest}=true; fine-tuning "
-                    "can add an input but not remove one; drop the override"
-                )
             if rest in HONOURED_MODEL_KEYS:
                 honoured.append(override)
                 continue
@@ -161,7 +152,7 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
                 f"data's frame spacing {frame_dt:g} s; record frames every {dt:g} s / k"
             )
         cfg.data.frames_per_step = k
-    return cfg, _with_added_inputs(cfg.model, ckpt)
+    return cfg, ckpt
 
 
 def load_initial_weights(sim: LearnedSimulator, ckpt: dict) -> None:
@@ -171,21 +162,6 @@ def load_initial_weights(sim: LearnedSimulator, ckpt: dict) -> None:
     load_weights(sim, ckpt, "init")
     if abs(float(sim.dt) - dt) > 1e-9 * max(dt, 1e-30):
         raise InputError(f"init: learned step {float(sim.dt):g} s, the data gives {dt:g} s")
-
-
-def _with_added_inputs(model: DictConfig, ckpt: dict) -> dict:
-    """``ckpt`` with a zero weight column appended for each input of :data:`ADDABLE_INPUTS`
-    that the fine-tuning run's ``model`` config switches on and the checkpoint's model lacks
-    (the input is the last column of its encoder), so that the grown network computes
-    exactly what the initial one did."""
-    saved = ckpt["config"]["model"]
-    state = dict(ckpt["state_dict"])
-    for option, weight in ADDABLE_INPUTS.items():
-        if model.get(option, False) and not saved.get(option, False):
-            key = f"sim.{weight}"
-            old = state[key]
-            state[key] = torch.cat([old, old.new_zeros(old.shape[0], 1)], dim=1)
-    return ckpt | {"state_dict": state}
 
 
 def merge_cards(initial: dict, new: dict, init: str) -> dict:

@@ -20,6 +20,7 @@ _REMOVED = {
     ("push_forward", "unroll_noise"): False,
     ("model", "type_scale"): 1.0,
     ("model", "normal_scale"): 1.0,
+    ("model", "overlap_feature"): False,
 }
 
 #: Options added later, with the value an older checkpoint's model had (off).
@@ -27,7 +28,6 @@ _ADDED = {
     ("model", "radius_feature"): False,
     ("model", "material_features"): [],
     ("model", "contact_feature"): False,
-    ("model", "overlap_feature"): False,
     ("model", "wall_nodes"): "triangle",  # the paper's wall nodes, before surface patches
     ("model", "walls_over_step"): False,  # the walls at a step's start
     ("data", "augment"): False,  # windows in the recorded frame, before turns and mirrors

@@ -173,7 +173,7 @@ def test_a_checkpoint_with_the_old_keys_resumes_under_the_new_names(tmp_path):
     data |= {"wall_press": 0.0, "keep_leaving": False, "resample_noise_at_walls": True}
     state["config"].pop("objective")
     state["config"]["push_forward"] = {"unroll_steps": 4, "unroll_prob": 0.5, "unroll_noise": False}
-    for added in ("radius_feature", "material_features", "contact_feature", "overlap_feature"):
+    for added in ("radius_feature", "material_features", "contact_feature"):
         state["config"]["model"].pop(added)  # options that came later, off in the old model
     torch.save(state, ckpt)
     _check_resume(str(ckpt), _steps_cfg(2))
