@@ -28,8 +28,8 @@ class SimulatorModule(L.LightningModule):
     torch) are saved in checkpoints and restored on resume, so a resumed run continues exactly.
 
     With ``ema_decay`` the model's weights are also averaged over the optimiser steps
-    (:class:`~granular_pyg.training.weight_average.WeightAverage`); validation runs with the
-    average, and a checkpoint's ``state_dict`` holds the average (what evaluation, rollouts,
+    (:class:`~granular_pyg.training.weight_average.WeightAverage`); validation epochs run with
+    the average, and a checkpoint's ``state_dict`` holds the average (what evaluation, rollouts,
     export and fine-tuning load) with the raw weights under ``raw_weights`` for an exact
     resume.
 
@@ -109,7 +109,8 @@ class SimulatorModule(L.LightningModule):
             self.average.update(self.sim)
 
     def on_validation_start(self) -> None:
-        """Validate (losses and rollouts) with the averaged weights."""
+        """Validate with the averaged weights: the losses and the rollouts after a validation
+        epoch (rollouts due by steps or seconds, in the training loop, see the raw weights)."""
         if self.average is not None and self.average.params is not None:
             self._raw = self._parameters_now()
             self._put(self.average.params)
@@ -156,7 +157,7 @@ class SimulatorModule(L.LightningModule):
         if self.average is not None and self.average.params is not None:
             raw = self._raw if self._raw is not None else self._parameters_now()
             state = checkpoint["state_dict"]
-            checkpoint["raw_weights"] = {f"sim.{k}": v.detach().clone() for k, v in raw.items()}
+            checkpoint["raw_weights"] = {f"sim.{k}": v for k, v in raw.items()}  # fresh copies
             for name, value in self.average.params.items():
                 state[f"sim.{name}"] = value.detach().clone()
 
