@@ -9,6 +9,12 @@ Printed: the bed's bias (mean a_z undisplaced, m/s^2) and, per ``delta`` in +-0.
 the change of the set's mean a_z (m/s^2). A restoring model answers with the opposite sign,
 growing with ``|delta|``; a dead-beat correction within one step is ``-delta / dt^2``
 (0.31 m/s^2 for 0.5 mm at dt = 40 ms).
+
+Then the whole bed is given one vertical velocity ``v`` over its history (each particle's past
+positions shifted by ``v (t - t_last)``, the last frame at rest) and the change of the bed's
+mean a_z is printed per ``v`` in +-1, 4, 10 mm/s. A bed at rest stops such a motion: a dead-beat
+stop is ``-v / dt`` (+0.10 m/s^2 for -4 mm/s); a model that answers a sinking bed with a
+downward acceleration turns the first step's small sink into a discharge through the lid.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from granular_pyg.evaluation.variants import held_still
 from granular_pyg.inference import load_simulator, rollout_trajectory
 
 DELTAS_M = (-5e-4, -2e-4, -1e-4, 1e-4, 2e-4, 5e-4)
+SPEEDS_M_S = (-1e-2, -4e-3, -1e-3, 1e-3, 4e-3, 1e-2)
 
 
 def _first_step_acceleration(sim, traj) -> np.ndarray:
@@ -59,6 +66,15 @@ def main(argv: list[str] | None = None) -> None:
             change = acc[idx, 2].mean() - base[idx, 2].mean()
             changes.append(f"{1e3 * delta:+.1f} mm: {change:+.3f}")
         print(f"  {name} 40 held displaced, change of a_z (m/s^2): " + ", ".join(changes))
+    steps_per_frame = round(float(sim.dt) / float(rest.times[1] - rest.times[0]))
+    t_last = rest.times[sim.history * steps_per_frame]  # the first step's last history frame
+    changes = []
+    for speed in SPEEDS_M_S:
+        pos = rest.positions.copy()
+        pos[:, :, 2] += (speed * (rest.times - t_last))[:, None]
+        acc = _first_step_acceleration(sim, dataclasses.replace(rest, positions=pos))
+        changes.append(f"{1e3 * speed:+.0f} mm/s: {acc[:, 2].mean() - base[:, 2].mean():+.3f}")
+    print("  whole bed moving along z, change of mean a_z (m/s^2): " + ", ".join(changes))
 
 
 if __name__ == "__main__":

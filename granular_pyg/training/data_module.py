@@ -100,9 +100,10 @@ class _Collate:
         correct_positions: bool = False,
         augment: bool = False,
         offset_std: float = 0.0,
+        drift_std: float = 0.0,
     ):
         self.sim, self.noise_std, self.seed = sim, noise_std, seed
-        self.offset_std = offset_std
+        self.offset_std, self.drift_std = offset_std, drift_std
         self.correct_positions = correct_positions
         self.augment = augment
 
@@ -110,7 +111,7 @@ class _Collate:
         graphs = []
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
-            if self.noise_std > 0 or self.offset_std > 0:
+            if self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
                     self.noise_std,
@@ -118,6 +119,7 @@ class _Collate:
                     generator=torch.Generator().manual_seed(key),
                     correct_positions=self.correct_positions,
                     offset_std=self.offset_std,
+                    drift_std=self.drift_std,
                 )
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
@@ -154,6 +156,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         offset_noise_std: a displacement (m, std per axis) held over a window's whole history,
             velocities clean, target clean: the model learns to push a particle displaced at
             rest back (see :class:`~granular_pyg.transforms.AddRandomWalkNoise`).
+        drift_noise_std: one velocity (m per learned step, std per axis) shared by a window's
+            particles over its history, the last position and the target clean: the model
+            learns to stop a bed's coherent motion that the truth does not have.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -178,6 +183,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         noise_std: float = 0.0,
         noise_target: str = "velocity",
         offset_noise_std: float = 0.0,
+        drift_noise_std: float = 0.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         trajectories: dict | None = None,
@@ -196,6 +202,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.offset_noise_std = finite_number(
             "data.offset_noise_std", offset_noise_std, minimum=0.0
         )
+        self.drift_noise_std = finite_number("data.drift_noise_std", drift_noise_std, minimum=0.0)
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
@@ -260,11 +267,14 @@ class TrajectoryDataModule(L.LightningDataModule):
         noise: float,
         augment: bool = False,
         offset: float = 0.0,
+        drift: float = 0.0,
         **kwargs,
     ) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
-        collate = _Collate(self.sim, noise, self.seed, self.correct_positions, augment, offset)
+        collate = _Collate(
+            self.sim, noise, self.seed, self.correct_positions, augment, offset, drift
+        )
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,
@@ -289,6 +299,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.noise_std,
             self.augment,
             self.offset_noise_std,
+            self.drift_noise_std,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

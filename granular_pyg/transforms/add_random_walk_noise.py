@@ -32,6 +32,12 @@ class AddRandomWalkNoise(BaseTransform):
     it, a model trained on the random walk answers a particle held 0.5 mm into a lid with
     0.001 m/s^2).
 
+    ``drift_std`` adds one velocity per window, shared by every particle (std per axis, m per
+    step): the history is shifted as if the whole bed had been moving with it, the last position
+    and the target stay clean, so the model learns to stop a coherent motion that the truth does
+    not have within one step (a bed at rest that starts to sink: without it, a model answers a
+    bed sinking at 4 mm/s onto a closed lid by accelerating it at 0.5 m/s^2, a discharge).
+
     With ``walls`` set, a particle whose noisy current position lies on the other side of a
     wall triangle within ``wall_check`` than its clean position gets fresh noise, up to
     ``max_tries`` times, then none (BGNN resamples noise that would push a particle through a
@@ -49,6 +55,8 @@ class AddRandomWalkNoise(BaseTransform):
         generator: optional ``torch.Generator`` for reproducible noise.
         correct_positions: keep the clean target (learn to undo position noise too).
         offset_std: std (m) of the displacement held over the history, never in the target.
+        drift_std: std (m per step) of the velocity shared by the window's particles over the
+            history, never in the target.
     """
 
     def __init__(
@@ -60,12 +68,14 @@ class AddRandomWalkNoise(BaseTransform):
         generator: torch.Generator | None = None,
         correct_positions: bool = False,
         offset_std: float = 0.0,
+        drift_std: float = 0.0,
     ) -> None:
-        for name, value in (("std", std), ("offset_std", offset_std)):
+        for name, value in (("std", std), ("offset_std", offset_std), ("drift_std", drift_std)):
             if not (value >= 0 and math.isfinite(value)):
                 raise InputError(f"{name}: expected a finite noise level >= 0 (m), got {value!r}")
         self.std = float(std)
         self.offset_std = float(offset_std)
+        self.drift_std = float(drift_std)
         self.resample_at_walls = bool(resample_at_walls)
         reach = 100.0 * max(self.std, self.offset_std)
         self.wall_check = float(wall_check) if wall_check is not None else reach
@@ -76,7 +86,8 @@ class AddRandomWalkNoise(BaseTransform):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(std={self.std}, resample_at_walls={self.resample_at_walls}, "
-            f"correct_positions={self.correct_positions}, offset_std={self.offset_std})"
+            f"correct_positions={self.correct_positions}, offset_std={self.offset_std}, "
+            f"drift_std={self.drift_std})"
         )
 
     def _walk(self, shape, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -97,6 +108,20 @@ class AddRandomWalkNoise(BaseTransform):
                 (num, 1, 3), generator=self.generator, dtype=like.dtype, device=like.device
             )
         return walk, offset
+
+    def _drift(self, seq: torch.Tensor) -> torch.Tensor:
+        """``[1, H + 1, 3]``: the history of one velocity ``u`` (m per step) shared by every
+        particle, ``u (j - H)`` at frame ``j`` (zero at the last frame; zeros without
+        ``drift_std``, drawing nothing). Drawn after the walk and the offset, so these are as
+        without it."""
+        steps = seq.shape[1] - 1
+        if self.drift_std <= 0:
+            return seq.new_zeros((1, steps + 1, 3))
+        u = self.drift_std * torch.randn(
+            (1, 1, 3), generator=self.generator, dtype=seq.dtype, device=seq.device
+        )
+        frames = torch.arange(-steps, 1, dtype=seq.dtype, device=seq.device)
+        return u * frames.reshape(1, -1, 1)
 
     def _crossing(self, data: Data, clean: torch.Tensor, noisy: torch.Tensor) -> torch.Tensor:
         """``[N]`` bool: the noisy position is across a near triangle's plane from the clean."""
@@ -121,7 +146,7 @@ class AddRandomWalkNoise(BaseTransform):
                 walk[redo], offset[redo] = self._walk((int(redo.sum()), seq.shape[1]), seq)
                 redo = redo & self._crossing(data, clean, clean + walk[:, -1] + offset[:, -1])
             walk[redo], offset[redo] = 0.0, 0.0
-        data.pos_seq = seq + walk + offset
+        data.pos_seq = seq + walk + offset + self._drift(seq)
         data.pos = data.pos_seq[:, -1]
         if "target_pos" in data and not self.correct_positions:
             data.target_pos = data.target_pos + walk[:, -1]

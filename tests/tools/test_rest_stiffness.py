@@ -5,14 +5,18 @@ from __future__ import annotations
 import math
 import re
 
-from tools.rest_stiffness import DELTAS_M, main
+from tools.rest_stiffness import DELTAS_M, SPEEDS_M_S, main
 
 
-def test_it_prints_the_bias_and_one_finite_change_per_displacement_for_both_sets(capsys):
+def test_it_prints_the_bias_and_a_finite_change_per_displacement_and_per_speed(capsys):
     main(["pretrained:fast_hopper", "sample:hopper"])
     lines = capsys.readouterr().out.splitlines()
     assert re.search(r"bias a_z [+-]\d+\.\d{3} m/s\^2", lines[0])
-    for name, line in zip(("lowest", "middle"), lines[1:], strict=True):
+    for name, line in zip(("lowest", "middle"), lines[1:3], strict=True):
         assert line.strip().startswith(name)
         changes = [float(v) for v in re.findall(r"mm: ([+-]\d+\.\d+)", line)]
         assert len(changes) == len(DELTAS_M) and all(math.isfinite(c) for c in changes)
+    assert lines[3].strip().startswith("whole bed moving along z")
+    changes = [float(v) for v in re.findall(r"mm/s: ([+-]\d+\.\d+)", lines[3])]
+    assert len(changes) == len(SPEEDS_M_S) and all(math.isfinite(c) for c in changes)
+    assert len(lines) == 4

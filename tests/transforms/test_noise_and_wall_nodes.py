@@ -80,6 +80,36 @@ def test_a_held_offset_moves_every_frame_alike_and_never_the_target():
         AddRandomWalkNoise(1e-5, offset_std=-1.0)
 
 
+def test_a_shared_drift_moves_every_velocity_alike_and_never_the_last_frame():
+    """``drift_std``: one velocity for the whole window, every particle's history shifted by
+    ``u (j - H)``: each velocity changes by exactly ``u``, the last position and the target stay
+    clean (stop the drift); the walk's and offset's draws are bit for bit those of before."""
+    seq = _sequence(50)
+    target = seq[:, -1] + 1e-4
+    draws = []
+    for seed in range(400):
+        data = AddRandomWalkNoise(
+            0.0, generator=torch.Generator().manual_seed(seed), drift_std=2e-4
+        )(Data(pos_seq=seq.clone(), target_pos=target.clone()))
+        change = torch.diff(data.pos_seq, dim=1) - torch.diff(seq, dim=1)  # [N, H, 3]
+        torch.testing.assert_close(change, change[:1, :1].expand_as(change), rtol=0, atol=1e-15)
+        assert torch.equal(data.pos_seq[:, -1], seq[:, -1])
+        assert torch.equal(data.target_pos, target)
+        draws.append(change[0, 0])
+    assert float(torch.stack(draws).std()) == pytest.approx(2e-4, rel=0.1)
+    kwargs = {"correct_positions": True, "offset_std": 2e-4}
+    drifted = AddRandomWalkNoise(
+        3e-5, generator=torch.Generator().manual_seed(1), drift_std=2e-4, **kwargs
+    )
+    alone = AddRandomWalkNoise(3e-5, generator=torch.Generator().manual_seed(1), **kwargs)
+    a = drifted(Data(pos_seq=seq.clone(), target_pos=target.clone()))
+    b = alone(Data(pos_seq=seq.clone(), target_pos=target.clone()))
+    torch.testing.assert_close(a.pos_seq[:, -1], b.pos_seq[:, -1], rtol=0, atol=0)
+    torch.testing.assert_close(a.target_pos, b.target_pos, rtol=0, atol=0)
+    with pytest.raises(InputError, match="drift_std"):
+        AddRandomWalkNoise(0.0, drift_std=float("nan"))
+
+
 def test_noise_target_must_be_velocity_or_position():
     from granular_pyg.training import TrajectoryDataModule
 
