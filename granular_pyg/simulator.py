@@ -500,8 +500,7 @@ class LearnedSimulator(nn.Module):
         x = torch.cat([vel_feat, normal_feat, kind], dim=1)
         x = x * data.node_weight.float().unsqueeze(1)
         # node property columns after the wall weight: the values themselves on every node
-        if self.radius_feature or self.material_features:
-            x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)
+        x = self._with_property_columns(x, props, num_real)
         src, dst = data.edge_index
         disp = (rel[dst] - rel[src]) / self.radius
         edge_attr = torch.cat([disp, torch.linalg.vector_norm(disp, dim=1, keepdim=True)], 1)
@@ -555,8 +554,7 @@ class LearnedSimulator(nn.Module):
         weight = data.node_weight.to(rel.dtype).unsqueeze(1)
         x = torch.cat([vel_all[..., 2], gram, normal_scalars, kind], 1) * weight
         vec = torch.cat([horiz, normal_vec.unsqueeze(1)], dim=1) * weight.unsqueeze(-1)
-        if self.radius_feature or self.material_features:
-            x = torch.cat([x, self._property_columns(props, x.shape[0] - num_real, x)], dim=1)
+        x = self._with_property_columns(x, props, num_real)
         src, dst = data.edge_index
         disp = (rel[dst] - rel[src]) / self.radius
         along = (normal[src] * disp).sum(dim=1, keepdim=True)
@@ -599,6 +597,16 @@ class LearnedSimulator(nn.Module):
         contact = (sender + radius[dst]) / self.radius  # in the cut-off's units, like the length
         length = edge_attr if edge_attr.shape[1] == 1 else edge_attr[:, 3:4]
         return length / contact.unsqueeze(1)
+
+    def _with_property_columns(
+        self, x: torch.Tensor, props: ParticleProps | None, num_real: int
+    ) -> torch.Tensor:
+        """``x [N + W, F]`` with the ``P`` property columns appended, ``[N + W, F + P]``
+        (``x`` itself for a model without radius or material inputs)."""
+        if not (self.radius_feature or self.material_features):
+            return x
+        num_wall = x.shape[0] - num_real
+        return torch.cat([x, self._property_columns(props, num_wall, x)], dim=1)
 
     def _property_columns(
         self, props: ParticleProps, num_wall: int, like: torch.Tensor

@@ -3,6 +3,7 @@ MSE and a figure in TensorBoard."""
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import lightning as L
@@ -57,7 +58,8 @@ class RolloutValidation(L.Callback):
     When: after every ``every_n_epochs``-th validation epoch, and, independently, during
     training every ``every_n_steps`` optimiser steps and/or every ``every_seconds`` seconds of
     wall time (a short fine-tuning run whose epochs take minutes still sees its rollouts);
-    ``None`` switches a trigger off.
+    ``None`` switches a trigger off. With a weight average (``optim.ema_decay``) every rollout
+    runs with the averaged weights, what validation and checkpoints hold.
 
     Args:
         every_n_epochs: rollout after every n-th validation epoch, or None.
@@ -119,7 +121,8 @@ class RolloutValidation(L.Callback):
         was_training = sim.training
         sim.eval()
         available = available_steps(sim, traj)
-        with torch.no_grad():
+        averaged = getattr(pl_module, "averaged_weights", contextlib.nullcontext)
+        with torch.no_grad(), averaged():
             rollout = rollout_trajectory(sim, traj, min(self.steps, available), progress=False)
         sim.train(was_training)
         first, steps = rollout.metadata["initial_frames"], rollout.metadata["steps"]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import random
+from collections.abc import Iterator
 
 import lightning as L
 import numpy as np
@@ -28,10 +30,10 @@ class SimulatorModule(L.LightningModule):
     torch) are saved in checkpoints and restored on resume, so a resumed run continues exactly.
 
     With ``ema_decay`` the model's weights are also averaged over the optimiser steps
-    (:class:`~granular_pyg.training.weight_average.WeightAverage`); validation epochs run with
-    the average, and a checkpoint's ``state_dict`` holds the average (what evaluation, rollouts,
-    export and fine-tuning load) with the raw weights under ``raw_weights`` for an exact
-    resume.
+    (:class:`~granular_pyg.training.weight_average.WeightAverage`); validation epochs and
+    validation rollouts run with the average (:meth:`averaged_weights`), and a checkpoint's
+    ``state_dict`` holds the average (what evaluation, rollouts, export and fine-tuning load)
+    with the raw weights under ``raw_weights`` for an exact resume.
 
     Args:
         simulator: the model.
@@ -109,13 +111,33 @@ class SimulatorModule(L.LightningModule):
             self.average.update(self.sim)
 
     def on_validation_start(self) -> None:
-        """Validate with the averaged weights: the losses and the rollouts after a validation
-        epoch (rollouts due by steps or seconds, in the training loop, see the raw weights)."""
-        if self.average is not None and self.average.params is not None:
-            self._raw = self._parameters_now()
-            self._put(self.average.params)
+        """Validate with the averaged weights (losses and the rollouts after the epoch)."""
+        self._average_in()
 
     def on_validation_end(self) -> None:
+        self._raw_back()
+
+    @contextlib.contextmanager
+    def averaged_weights(self) -> Iterator[None]:
+        """The averaged weights in the model within the block, the raw ones back after it (a
+        rollout due by steps or seconds in the training loop sees what validation sees); a
+        no-op without an average or while they already are in."""
+        swapped = self._average_in()
+        try:
+            yield
+        finally:
+            if swapped:
+                self._raw_back()
+
+    def _average_in(self) -> bool:
+        """Put the average in, keeping the raw weights aside; False if there was nothing to do."""
+        if self.average is None or self.average.params is None or self._raw is not None:
+            return False
+        self._raw = self._parameters_now()
+        self._put(self.average.params)
+        return True
+
+    def _raw_back(self) -> None:
         if self._raw is not None:
             self._put(self._raw)
             self._raw = None

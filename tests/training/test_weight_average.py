@@ -79,3 +79,39 @@ def test_a_run_without_the_average_resumes_from_the_raw_weights(tmp_path):
     losses, plain = _train_losses(tmp_path / "straight"), _train_losses(tmp_path / "plain")
     for step in (s for s in losses if s >= 3):
         assert plain[step] == pytest.approx(losses[step], rel=1e-6), step
+
+
+def test_a_rollout_due_by_steps_sees_the_average_and_leaves_training_alone(tmp_path, monkeypatch):
+    """A validation rollout in the training loop (``rollout_validation.every_n_steps``) runs
+    with the averaged weights, as validation does, and puts the raw weights back: the training
+    losses are those of the run without such rollouts."""
+    from granular_pyg.training import callbacks
+
+    latest, seen = {}, []
+    update, rollout = WeightAverage.update, callbacks.rollout_trajectory
+
+    def recording_update(self, module):
+        update(self, module)
+        latest.update({k: v.clone() for k, v in self.params.items()})
+
+    def recording_rollout(sim, *args, **kwargs):
+        seen.append(({k: p.detach().clone() for k, p in sim.named_parameters()}, dict(latest)))
+        return rollout(sim, *args, **kwargs)
+
+    monkeypatch.setattr(WeightAverage, "update", recording_update)
+    monkeypatch.setattr(callbacks, "rollout_trajectory", recording_rollout)
+    ema = "optim.ema_decay=0.5"
+    train(_steps_cfg(4, ema), tmp_path / "plain")
+    assert not seen
+    steps = ("rollout_validation.every_n_steps=2", "rollout_validation.steps=1")
+    train(_steps_cfg(4, ema, *steps), tmp_path / "rollouts")
+    assert len(seen) == 2
+    for weights, average in seen:
+        for name, value in average.items():
+            assert torch.equal(weights[name], value), name
+    _, raw = _weights(tmp_path / "rollouts" / "checkpoints" / "last.ckpt")
+    assert any(not torch.equal(raw[f"sim.{k}"], v) for k, v in seen[-1][1].items())
+    plain, rolled = _train_losses(tmp_path / "plain"), _train_losses(tmp_path / "rollouts")
+    assert plain and rolled.keys() == plain.keys()
+    for step, loss in plain.items():
+        assert rolled[step] == pytest.approx(loss, rel=1e-6), step
