@@ -156,9 +156,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         offset_noise_std: a displacement (m, std per axis) held over a window's whole history,
             velocities clean, target clean: the model learns to push a particle displaced at
             rest back (see :class:`~granular_pyg.transforms.AddRandomWalkNoise`).
-        drift_noise_std: one velocity (m per learned step, std per axis) shared by a window's
-            particles over its history, the last position and the target clean: the model
-            learns to stop a bed's coherent motion that the truth does not have.
+        drift_noise_std: a random walk shared by a window's particles (last velocity std, m
+            per learned step), the last position and the target clean: the model learns to
+            stop a bed's coherent motion that the truth does not have.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.

@@ -32,11 +32,12 @@ class AddRandomWalkNoise(BaseTransform):
     it, a model trained on the random walk answers a particle held 0.5 mm into a lid with
     0.001 m/s^2).
 
-    ``drift_std`` adds one velocity per window, shared by every particle (std per axis, m per
-    step): the history is shifted as if the whole bed had been moving with it, the last position
-    and the target stay clean, so the model learns to stop a coherent motion that the truth does
-    not have within one step (a bed at rest that starts to sink: without it, a model answers a
-    bed sinking at 4 mm/s onto a closed lid by accelerating it at 0.5 m/s^2, a discharge).
+    ``drift_std`` adds a second random walk, one for the whole window, shared by every
+    particle (the last velocity's std, m per step), shifted so that the last position is clean,
+    with the target clean: the model learns to stop a coherent motion of the bed that the truth
+    does not have, within one step. Without it a model answers a settled bed on a closed lid
+    whose last step sank at 7 mm/s by accelerating it downwards at 1-2 m/s^2 (the start of a
+    discharge), so a held bed's first small sink becomes a flow through the lid.
 
     With ``walls`` set, a particle whose noisy current position lies on the other side of a
     wall triangle within ``wall_check`` than its clean position gets fresh noise, up to
@@ -55,8 +56,8 @@ class AddRandomWalkNoise(BaseTransform):
         generator: optional ``torch.Generator`` for reproducible noise.
         correct_positions: keep the clean target (learn to undo position noise too).
         offset_std: std (m) of the displacement held over the history, never in the target.
-        drift_std: std (m per step) of the velocity shared by the window's particles over the
-            history, never in the target.
+        drift_std: last-velocity std (m per step) of the walk shared by the window's particles,
+            never in the last position nor the target.
     """
 
     def __init__(
@@ -110,18 +111,19 @@ class AddRandomWalkNoise(BaseTransform):
         return walk, offset
 
     def _drift(self, seq: torch.Tensor) -> torch.Tensor:
-        """``[1, H + 1, 3]``: the history of one velocity ``u`` (m per step) shared by every
-        particle, ``u (j - H)`` at frame ``j`` (zero at the last frame; zeros without
-        ``drift_std``, drawing nothing). Drawn after the walk and the offset, so these are as
-        without it."""
+        """``[1, H + 1, 3]``: one random walk for every particle (last velocity std
+        ``drift_std``, m per step), minus its last frame, so the last position is unchanged
+        (zeros without ``drift_std``, drawing nothing). Drawn after the per-particle walk and
+        the offset, so these are as without it."""
         steps = seq.shape[1] - 1
         if self.drift_std <= 0:
             return seq.new_zeros((1, steps + 1, 3))
-        u = self.drift_std * torch.randn(
-            (1, 1, 3), generator=self.generator, dtype=seq.dtype, device=seq.device
+        increments = torch.randn(
+            (1, steps, 3), generator=self.generator, dtype=seq.dtype, device=seq.device
         )
-        frames = torch.arange(-steps, 1, dtype=seq.dtype, device=seq.device)
-        return u * frames.reshape(1, -1, 1)
+        velocity = torch.cumsum(increments * (self.drift_std / math.sqrt(max(steps, 1))), dim=1)
+        walk = torch.cat([seq.new_zeros((1, 1, 3)), torch.cumsum(velocity, dim=1)], dim=1)
+        return walk - walk[:, -1:]
 
     def _crossing(self, data: Data, clean: torch.Tensor, noisy: torch.Tensor) -> torch.Tensor:
         """``[N]`` bool: the noisy position is across a near triangle's plane from the clean."""
