@@ -267,6 +267,7 @@ class LearnedSimulator(nn.Module):
         self.wall_nodes = AddWallNodes(radius, normals, wall_weight, wall_nodes)
         extra_in = int(self.radius_feature) + len(self.material_features)
         self.equivariant = isinstance(processor, HorizontalEquivariantProcessor)
+        self.reach = self.radius * int(processor.num_steps)  # m: how far a step's news travels
         if self.equivariant:
             if processor.latent != latent:
                 raise InputError(

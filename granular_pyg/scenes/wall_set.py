@@ -95,6 +95,38 @@ class WallSet:
         names = ", ".join(f"{w.name}: {len(w.faces)}" for w in self.walls)
         return f"WallSet({names})"
 
+    def changing(self, t0: float, t1: float) -> list[int]:
+        """Indices of the walls removed, or whose motion starts, stops or reverses, at a
+        recorded time in ``[t0, t1]`` (s): the events a learned step over it holds."""
+        changed = []
+        for i, wall in enumerate(self.walls):
+            m = wall.motion
+            events = [] if wall.removal_time is None else [wall.removal_time]
+            if m.kind != "static":
+                events += [m.start_time, *m.reverse_times]
+                if m.stop_time is not None:
+                    events.append(m.stop_time)
+            if any(t0 <= e <= t1 for e in events):
+                changed.append(i)
+        return changed
+
+    def near(
+        self, points: torch.Tensor, reach: float, time: float, walls: list[int]
+    ) -> torch.Tensor:
+        """``[P]`` bool: the ``points [P, 3]`` (m) closer than ``reach`` (m) to a triangle of
+        one of ``walls`` (indices), at the walls' poses at recorded time ``time`` (s)."""
+        near = torch.zeros(points.shape[0], dtype=torch.bool)
+        for i in walls:
+            rot, shift = self.walls[i].motion.pose(time)
+            found = self.indices[i].pairs(
+                points.detach().cpu(),
+                reach,
+                torch.from_numpy(rot).to(points.dtype),
+                torch.from_numpy(shift).to(points.dtype),
+            )
+            near[found.point_idx] = True
+        return near
+
     def contacts(
         self, points: torch.Tensor, radius: float, time: float, step_end: float | None = None
     ) -> WallContacts:

@@ -101,11 +101,24 @@ class _Collate:
         augment: bool = False,
         offset_std: float = 0.0,
         drift_std: float = 0.0,
+        mask_beyond_reach: bool = False,
     ):
         self.sim, self.noise_std, self.seed = sim, noise_std, seed
         self.offset_std, self.drift_std = offset_std, drift_std
+        self.mask_beyond_reach = mask_beyond_reach
         self.correct_positions = correct_positions
         self.augment = augment
+
+    def _reached(self, w: Window, last: torch.Tensor) -> torch.Tensor:
+        """``[N]`` bool: the particles whose target the model can know. A step that removes a
+        wall or starts, stops or reverses one reaches, within the step, only the particles
+        within the model's reach of that wall (message-passing steps x cut-off); the rest of
+        the bed (at rest in its history) cannot tell such a step from one without the event,
+        and a loss on it teaches the average of both: a bed at rest that sinks."""
+        changed = w.walls.changing(w.time, w.time + float(self.sim.dt))
+        if not changed:
+            return torch.ones(last.shape[0], dtype=torch.bool)
+        return w.walls.near(last, self.sim.reach, w.time, changed)
 
     def __call__(self, windows: list[Window]) -> Batch:
         graphs = []
@@ -130,6 +143,8 @@ class _Collate:
             with torch.no_grad():
                 graph = self.sim.build_graph(pos_seq, w.walls, w.time, props=w.props, frame=w.frame)
                 graph.y = self.sim.target_acceleration(pos_seq, target, w.frame)
+            if self.mask_beyond_reach:
+                graph.y[~self._reached(w, pos_seq[:, -1])] = float("nan")
             graphs.append(graph)
         batch = Batch.from_data_list(graphs)
         batch.windows = windows  # raw windows, for objectives that run the model on
@@ -159,6 +174,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         drift_noise_std: a random walk shared by a window's particles (last velocity std, m
             per learned step), the last position and the target clean: the model learns to
             stop a bed's coherent motion that the truth does not have.
+        mask_beyond_reach: leave out of the training loss the particles that a step's wall
+            event (a wall removed, a motion started, stopped or reversed within it) cannot
+            reach through the model's message passing (``sim.reach``); validation keeps them.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -184,6 +202,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         noise_target: str = "velocity",
         offset_noise_std: float = 0.0,
         drift_noise_std: float = 0.0,
+        mask_beyond_reach: bool = False,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         trajectories: dict | None = None,
@@ -203,6 +222,11 @@ class TrajectoryDataModule(L.LightningDataModule):
             "data.offset_noise_std", offset_noise_std, minimum=0.0
         )
         self.drift_noise_std = finite_number("data.drift_noise_std", drift_noise_std, minimum=0.0)
+        if not isinstance(mask_beyond_reach, bool):
+            raise InputError(
+                f"data.mask_beyond_reach: expected true or false, got {mask_beyond_reach!r}"
+            )
+        self.mask_beyond_reach = mask_beyond_reach
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
@@ -268,12 +292,13 @@ class TrajectoryDataModule(L.LightningDataModule):
         augment: bool = False,
         offset: float = 0.0,
         drift: float = 0.0,
+        mask: bool = False,
         **kwargs,
     ) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
         collate = _Collate(
-            self.sim, noise, self.seed, self.correct_positions, augment, offset, drift
+            self.sim, noise, self.seed, self.correct_positions, augment, offset, drift, mask
         )
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
@@ -300,6 +325,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.augment,
             self.offset_noise_std,
             self.drift_noise_std,
+            self.mask_beyond_reach,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

@@ -75,3 +75,38 @@ def test_a_drum_reversing_mid_step_carries_the_net_turn_over_the_step():
     torch.testing.assert_close(over.velocity, 0.5 * at_start.velocity)
     after = walls.contacts(points, 0.005, 0.15)  # turning the other way at full speed
     torch.testing.assert_close(after.velocity, -at_start.velocity, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("motion", "removal", "t0", "t1", "changes"),
+    [
+        (WallMotion(), None, 0.0, 1.0, False),  # static, never removed
+        (WallMotion(), 0.5, 0.46, 0.5, True),  # removed at the step's end
+        (WallMotion(), 0.5, 0.5, 0.54, True),  # removed at its start: the history had it
+        (WallMotion(), 0.5, 0.51, 0.55, False),  # gone before the step
+        (MOTIONS[0], None, 0.1, 0.14, True),  # the drum starts at 0.11 s
+        (MOTIONS[0], None, 0.2, 0.24, False),  # turning steadily
+        (MOTIONS[0], None, 0.5, 0.54, True),  # and stops at 0.52 s
+        (MOTIONS[3], None, 0.3, 0.31, True),  # turns back at 0.305 s
+        (MOTIONS[2], None, 0.2, 0.24, False),  # an oscillation changes smoothly
+    ],
+)
+def test_changing_names_the_walls_a_step_removes_starts_stops_or_reverses(
+    motion, removal, t0, t1, changes
+):
+    assert _floor(motion, removal).changing(t0, t1) == ([0] if changes else [])
+
+
+def test_near_finds_the_points_within_reach_of_the_given_walls_at_their_pose():
+    """A floor turned 90 degrees about y by t = 0.5 s lies in the y-z plane: the points near it
+    are those of small |x|, whatever their height; against the distances by brute force."""
+    walls = _floor(WallMotion("rotation", axis=(0.0, 1.0, 0.0), omega=np.pi))
+    points = torch.tensor(
+        [[0.004, 0.0, 0.1], [0.02, 0.1, -0.2], [0.0, 0.0, 0.0], [-0.015, -0.3, 0.3]],
+        dtype=torch.float64,
+    )
+    near = walls.near(points, 0.0125, 0.5, [0])
+    x_world = walls.walls[0].vertices_at(0.5)[:, 0]
+    np.testing.assert_allclose(x_world, 0.0, atol=1e-12)  # the turned floor: x = 0
+    assert near.tolist() == [True, False, True, False]
+    assert not walls.near(points, 0.0125, 0.5, []).any()
