@@ -5,9 +5,10 @@ The trajectory's first frame is held still (``held_still``: velocities zero, wal
 or removed). Two sets of 40 particles, the lowest (on the floor or lid) and a random 40 of the
 middle third by height, are then held displaced by ``delta`` along z over the whole history (at
 rest, displaced) and the first learned step's vertical acceleration of those particles is read.
-Printed: the bed's bias (mean a_z undisplaced, m/s^2) and, per ``delta`` in +-0.1, 0.2, 0.5 mm,
-the change of the set's mean a_z (m/s^2). A restoring model answers with the opposite sign,
-growing with ``|delta|``; a dead-beat correction within one step is ``-delta / dt^2``
+Printed: the bed's bias (mean a_z undisplaced, m/s^2), over the bed and per tenth of it by
+height (a bias the same at every height is not the lid's doing), and, per ``delta`` in +-0.1,
+0.2, 0.5 mm, the change of the set's mean a_z (m/s^2). A restoring model answers with the
+opposite sign, growing with ``|delta|``; a dead-beat correction within one step is ``-delta / dt^2``
 (0.31 m/s^2 for 0.5 mm at dt = 40 ms).
 
 Then the whole bed is given one vertical velocity ``v``, over its whole history (each
@@ -59,6 +60,11 @@ def main(argv: list[str] | None = None) -> None:
     }
     base = _first_step_acceleration(sim, rest)
     print(f"{args.ckpt}: bias a_z {base[:, 2].mean():+.3f} m/s^2 (dt {float(sim.dt):g} s)")
+    tenths = np.array_split(order, 10)
+    print(
+        "  bias by height tenth, bottom to top: "
+        + " ".join(f"{base[t, 2].mean():+.3f}" for t in tenths)
+    )
     for name, idx in sets.items():
         changes = []
         for delta in DELTAS_M:
