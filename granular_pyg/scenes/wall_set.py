@@ -97,7 +97,8 @@ class WallSet:
 
     def changing(self, t0: float, t1: float) -> list[int]:
         """Indices of the walls removed, or whose motion starts, stops or reverses, at a
-        recorded time in ``[t0, t1]`` (s): the events a learned step over it holds."""
+        recorded time in ``[t0, t1]`` (s, to 1 ns: recorded times are sums of frame spacings):
+        the events a learned step over it holds."""
         changed = []
         for i, wall in enumerate(self.walls):
             m = wall.motion
@@ -106,7 +107,7 @@ class WallSet:
                 events += [m.start_time, *m.reverse_times]
                 if m.stop_time is not None:
                     events.append(m.stop_time)
-            if any(t0 <= e <= t1 for e in events):
+            if any(t0 - 1e-9 <= e <= t1 + 1e-9 for e in events):
                 changed.append(i)
         return changed
 

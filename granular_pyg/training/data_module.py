@@ -110,12 +110,15 @@ class _Collate:
         self.augment = augment
 
     def _reached(self, w: Window, last: torch.Tensor) -> torch.Tensor:
-        """``[N]`` bool: the particles whose target the model can know. A step that removes a
-        wall or starts, stops or reverses one reaches, within the step, only the particles
-        within the model's reach of that wall (message-passing steps x cut-off); the rest of
-        the bed (at rest in its history) cannot tell such a step from one without the event,
-        and a loss on it teaches the average of both: a bed at rest that sinks."""
-        changed = w.walls.changing(w.time, w.time + float(self.sim.dt))
+        """``[N]`` bool: the particles whose target the model can know. A wall removed, or a
+        motion started, stopped or reversed, within the step or within the history's last
+        step reaches, by the step's end, only the particles within the model's reach of that
+        wall (message-passing steps x cut-off); the rest of the bed is at rest in its history,
+        or moves by a fraction of a mm/s, as in the steps without the event, and a loss on it
+        teaches the mix of both: a bed at rest that sinks, and a bed that starts to sink
+        sped up."""
+        dt = float(self.sim.dt)
+        changed = w.walls.changing(w.time - dt, w.time + dt)
         if not changed:
             return torch.ones(last.shape[0], dtype=torch.bool)
         return w.walls.near(last, self.sim.reach, w.time, changed)
@@ -174,9 +177,10 @@ class TrajectoryDataModule(L.LightningDataModule):
         drift_noise_std: a random walk shared by a window's particles (last velocity std, m
             per learned step), the last position and the target clean: the model learns to
             stop a bed's coherent motion that the truth does not have.
-        mask_beyond_reach: leave out of the training loss the particles that a step's wall
-            event (a wall removed, a motion started, stopped or reversed within it) cannot
-            reach through the model's message passing (``sim.reach``); validation keeps them.
+        mask_beyond_reach: leave out of the training loss the particles that a wall event (a
+            wall removed, a motion started, stopped or reversed) within the step or the
+            history's last step cannot reach through the model's message passing
+            (``sim.reach``); validation keeps them.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
