@@ -91,18 +91,22 @@ class AddRandomWalkNoise(BaseTransform):
             f"drift_std={self.drift_std})"
         )
 
+    def _random_walk(self, num: int, steps: int, std: float, like: torch.Tensor) -> torch.Tensor:
+        """``[num, steps + 1, 3]`` positions (m) of ``num`` random walks, zero at the oldest
+        frame, whose velocities per step gain Gaussian increments of std ``std / sqrt(steps)``
+        (so the last velocity's std is ``std``, m per step)."""
+        increments = torch.randn(
+            (num, steps, 3), generator=self.generator, dtype=like.dtype, device=like.device
+        )
+        velocity_noise = torch.cumsum(increments * (std / math.sqrt(max(steps, 1))), dim=1)
+        return torch.cat([like.new_zeros((num, 1, 3)), torch.cumsum(velocity_noise, dim=1)], 1)
+
     def _walk(self, shape, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``([N, H + 1, 3], [N, 1, 3])``: the random walk (zero at the oldest frame) and the
         held offset (zeros without ``offset_std``, drawing nothing: the walk's draws are as
         before)."""
-        num, steps = shape[0], shape[1] - 1
-        step_std = self.std / math.sqrt(max(steps, 1))
-        increments = torch.randn(
-            (num, steps, 3), generator=self.generator, dtype=like.dtype, device=like.device
-        )
-        velocity_noise = torch.cumsum(increments * step_std, dim=1)
-        position_noise = torch.cumsum(velocity_noise, dim=1)
-        walk = torch.cat([like.new_zeros((num, 1, 3)), position_noise], dim=1)
+        num = shape[0]
+        walk = self._random_walk(num, shape[1] - 1, self.std, like)
         offset = like.new_zeros((num, 1, 3))
         if self.offset_std > 0:
             offset = self.offset_std * torch.randn(
@@ -115,14 +119,9 @@ class AddRandomWalkNoise(BaseTransform):
         ``drift_std``, m per step), minus its last frame, so the last position is unchanged
         (zeros without ``drift_std``, drawing nothing). Drawn after the per-particle walk and
         the offset, so these are as without it."""
-        steps = seq.shape[1] - 1
         if self.drift_std <= 0:
-            return seq.new_zeros((1, steps + 1, 3))
-        increments = torch.randn(
-            (1, steps, 3), generator=self.generator, dtype=seq.dtype, device=seq.device
-        )
-        velocity = torch.cumsum(increments * (self.drift_std / math.sqrt(max(steps, 1))), dim=1)
-        walk = torch.cat([seq.new_zeros((1, 1, 3)), torch.cumsum(velocity, dim=1)], dim=1)
+            return seq.new_zeros((1, seq.shape[1], 3))
+        walk = self._random_walk(1, seq.shape[1] - 1, self.drift_std, seq)
         return walk - walk[:, -1:]
 
     def _crossing(self, data: Data, clean: torch.Tensor, noisy: torch.Tensor) -> torch.Tensor:
