@@ -16,6 +16,7 @@ from granular_pyg.errors import InputError, finite_number, whole_number
 from granular_pyg.geometry import random_horizontal_frame
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives import Objective
+from granular_pyg.training.reach_mask import within_reach_of_events
 from granular_pyg.transforms import AddRandomWalkNoise
 
 __all__ = ["EpochSampler", "ResumableLoader", "TrajectoryDataModule"]
@@ -109,20 +110,6 @@ class _Collate:
         self.correct_positions = correct_positions
         self.augment = augment
 
-    def _reached(self, w: Window, last: torch.Tensor) -> torch.Tensor:
-        """``[N]`` bool: the particles whose target the model can know. A wall removed, or a
-        motion started, stopped or reversed, within the step or within the history's last
-        step reaches, by the step's end, only the particles within the model's reach of that
-        wall (message-passing steps x cut-off); the rest of the bed is at rest in its history,
-        or moves by a fraction of a mm/s, as in the steps without the event, and a loss on it
-        teaches the mix of both: a bed at rest that sinks, and a bed that starts to sink
-        sped up."""
-        dt = float(self.sim.dt)
-        changed = w.walls.changing(w.time - dt, w.time + dt)
-        if not changed:
-            return torch.ones(last.shape[0], dtype=torch.bool)
-        return w.walls.near(last, self.sim.reach, w.time, changed)
-
     def __call__(self, windows: list[Window]) -> Batch:
         graphs = []
         for w in windows:
@@ -147,10 +134,14 @@ class _Collate:
                 graph = self.sim.build_graph(pos_seq, w.walls, w.time, props=w.props, frame=w.frame)
                 graph.y = self.sim.target_acceleration(pos_seq, target, w.frame)
             if self.mask_beyond_reach:
-                graph.y[~self._reached(w, pos_seq[:, -1])] = float("nan")
+                reached = within_reach_of_events(
+                    w.walls, pos_seq[:, -1], w.time, float(self.sim.dt), self.sim.reach
+                )
+                graph.y[~reached] = float("nan")
             graphs.append(graph)
         batch = Batch.from_data_list(graphs)
         batch.windows = windows  # raw windows, for objectives that run the model on
+        batch.mask_beyond_reach = self.mask_beyond_reach  # they mask their own steps alike
         return batch
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import torch
@@ -21,7 +20,8 @@ from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.data_module import _Collate
-from granular_pyg.training.objectives import masked_mse
+from granular_pyg.training.objectives import Unrolled, masked_mse
+from granular_pyg.training.reach_mask import within_reach_of_events
 
 
 def _model() -> LearnedSimulator:
@@ -80,7 +80,6 @@ def test_the_mask_is_the_same_for_the_scene_turned_mirrored_or_shifted():
         sim = LearnedSimulator(
             Processor(latent=16, num_steps=num_steps), radius=0.0075, latent=16, dt=0.0025
         )
-        collate = _Collate(sim, 0.0, 0, mask_beyond_reach=True)
         traj = read_trajectory(sample_files(scene_name)[0])
         if scene_name == "drum":
             traj = _drum_that_reverses_and_stops(traj)
@@ -91,8 +90,32 @@ def test_the_mask_is_the_same_for_the_scene_turned_mirrored_or_shifted():
             masks = []
             for t, w in zip((traj, *variants), walls, strict=True):
                 last = torch.from_numpy(t.positions[frame]).double()
-                masks.append(collate._reached(SimpleNamespace(walls=w, time=float(time)), last))
+                masks.append(within_reach_of_events(w, last, float(time), sim.dt, sim.reach))
             for m in masks[1:]:
                 assert torch.equal(m, masks[0]), (scene_name, float(time))
             partial += bool(0 < masks[0].sum() < len(masks[0]))
         assert partial >= 2, scene_name  # the events leave part of the bed out
+
+
+def test_the_unrolled_loss_does_not_depend_on_the_targets_it_masks():
+    """Unrolled runs near the lid's removal: with the mask, moving the recorded future of the
+    particles beyond reach of the lid leaves the loss unchanged; without it, it does not."""
+    sim = _model()
+    data = WindowDataset(sample_files("hopper")[:1], history=5, frames_per_step=1, extra_steps=2)
+    lid = data.trajs[0].scene.wall("lid")
+    (w,) = [data[i] for i in range(len(data)) if abs(data[i].time - lid.removal_time) < 1e-9]
+    far = ~within_reach_of_events(w.walls, w.pos_seq[:, -1].double(), w.time, sim.dt, sim.reach)
+    assert 0 < far.sum() < len(far)
+    moved = WindowDataset(sample_files("hopper")[:1], history=5, frames_per_step=1, extra_steps=2)
+    (v,) = [moved[i] for i in range(len(moved)) if abs(moved[i].time - lid.removal_time) < 1e-9]
+    v.target_pos[far] += torch.tensor([0.0, 0.0, -1e-3])
+    objective = Unrolled(steps=2, share=1.0)
+    losses = {}
+    for mask in (True, False):
+        collate = _Collate(sim, 0.0, 0, mask_beyond_reach=mask)
+        with torch.no_grad():
+            losses[mask] = [
+                float(objective.loss(sim, collate([x]), torch.Generator())) for x in (w, v)
+            ]
+    assert losses[True][0] == losses[True][1]
+    assert losses[False][0] != losses[False][1]

@@ -8,6 +8,7 @@ from torch_geometric.data import Batch
 from granular_pyg.errors import InputError
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives.base import Objective, learned_steps, masked_mse
+from granular_pyg.training.reach_mask import within_reach_of_events
 
 __all__ = ["Unrolled"]
 
@@ -17,6 +18,8 @@ class Unrolled(Objective):
     is the mean over the steps of the one-step loss against the acceleration that would take the
     model's state to LIGGGHTS's next positions, i.e. of the position error along the model's own
     run (scaled by ``1 / (dt^2 acc_std)``). Particles leave through the outflow as in a rollout.
+    With ``data.mask_beyond_reach``, each step near a wall event leaves out the particles
+    beyond the model's reach of it, as the one-step loss does.
     The edges and the walls' closest points are not differentiated: a wall edge's displacement
     carries the gradient of its particle's position only.
 
@@ -35,6 +38,7 @@ class Unrolled(Objective):
 
     def loss(self, sim: LearnedSimulator, batch: Batch, generator: torch.Generator) -> torch.Tensor:
         dt, steps, device = float(sim.dt), self.steps, batch.x.device
+        mask = bool(getattr(batch, "mask_beyond_reach", False))
         acc_mean, acc_std = sim.acc_mean.double(), sim.acc_std.double()
         losses = []
         for w in batch.windows:
@@ -52,7 +56,11 @@ class Unrolled(Objective):
                 t = w.time + u * dt
                 acc = sim.predict_acceleration(seq, w.walls, t, props=props, frame=frame).double()
                 pred = (acc - acc_mean) / acc_std
-                losses.append(masked_mse(pred, sim.target_acceleration(seq, known[:, u]).double()))
+                target = sim.target_acceleration(seq, known[:, u]).double()
+                if mask:
+                    reached = within_reach_of_events(w.walls, seq[:, -1].detach(), t, dt, sim.reach)
+                    target[~reached.to(device)] = float("nan")
+                losses.append(masked_mse(pred, target))
                 if u + 1 == steps:
                     break
                 nxt = sim.integrate(seq, acc)
