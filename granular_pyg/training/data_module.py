@@ -82,6 +82,17 @@ class ResumableLoader(DataLoader):
             self.sampler.skip_next = (int(state["epoch"]), done)
 
 
+#: A particle whose history moves slower than this (m/s) at every step is at rest.
+REST_SPEED = 1e-3
+
+
+def at_rest(pos_seq: torch.Tensor, dt: float) -> torch.Tensor:
+    """``[N]`` bool: the particles of ``pos_seq [N, H + 1, 3]`` (m, the clean history, a
+    learned step ``dt`` (s) apart) that move slower than :data:`REST_SPEED` in every step."""
+    step = torch.linalg.vector_norm(pos_seq.diff(dim=1), dim=-1)
+    return (step < REST_SPEED * dt).all(dim=1)
+
+
 class _Collate:
     """Windows -> one Batch of graphs (runs in the loader's worker processes).
 
@@ -103,8 +114,10 @@ class _Collate:
         offset_std: float = 0.0,
         drift_std: float = 0.0,
         mask_beyond_reach: bool = False,
+        rest_weight: float = 1.0,
     ):
         self.sim, self.noise_std, self.seed = sim, noise_std, seed
+        self.rest_weight = rest_weight
         self.offset_std, self.drift_std = offset_std, drift_std
         self.mask_beyond_reach = mask_beyond_reach
         self.correct_positions = correct_positions
@@ -114,6 +127,7 @@ class _Collate:
         graphs = []
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
+            rest = at_rest(pos_seq, float(self.sim.dt)) if self.rest_weight != 1.0 else None
             if self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
@@ -138,6 +152,8 @@ class _Collate:
                     w.walls, pos_seq[:, -1], w.time, float(self.sim.dt), self.sim.reach
                 )
                 graph.y[~reached] = float("nan")
+            if rest is not None:
+                graph.weight = torch.where(rest, self.rest_weight, 1.0).to(graph.y.dtype)
             graphs.append(graph)
         batch = Batch.from_data_list(graphs)
         batch.windows = windows  # raw windows, for objectives that run the model on
@@ -172,6 +188,10 @@ class TrajectoryDataModule(L.LightningDataModule):
             wall removed, a motion started, stopped or reversed) within the step or the
             history's last step cannot reach through the model's message passing
             (``sim.reach``); validation keeps them.
+        rest_weight: the one-step loss weighs a particle whose clean history is at rest
+            (slower than 1 mm/s at every step: :func:`at_rest`) this many times more. A bed
+            at rest needs its acceleration to about 0.01 m/s^2, in a loss whose scale is set
+            by the flow's (m/s^2).
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -198,6 +218,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         offset_noise_std: float = 0.0,
         drift_noise_std: float = 0.0,
         mask_beyond_reach: bool = False,
+        rest_weight: float = 1.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         trajectories: dict | None = None,
@@ -222,6 +243,7 @@ class TrajectoryDataModule(L.LightningDataModule):
                 f"data.mask_beyond_reach: expected true or false, got {mask_beyond_reach!r}"
             )
         self.mask_beyond_reach = mask_beyond_reach
+        self.rest_weight = finite_number("data.rest_weight", rest_weight, minimum=0.0)
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
@@ -288,12 +310,21 @@ class TrajectoryDataModule(L.LightningDataModule):
         offset: float = 0.0,
         drift: float = 0.0,
         mask: bool = False,
+        rest_weight: float = 1.0,
         **kwargs,
     ) -> DataLoader:
         if self.sim is None:
             raise InputError("TrajectoryDataModule.attach(simulator) must come before loading")
         collate = _Collate(
-            self.sim, noise, self.seed, self.correct_positions, augment, offset, drift, mask
+            self.sim,
+            noise,
+            self.seed,
+            self.correct_positions,
+            augment,
+            offset,
+            drift,
+            mask,
+            rest_weight,
         )
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
@@ -321,6 +352,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.offset_noise_std,
             self.drift_noise_std,
             self.mask_beyond_reach,
+            self.rest_weight,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

@@ -19,15 +19,21 @@ def learned_steps(name: str, value) -> int:
     return steps
 
 
-def masked_mse(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def masked_mse(
+    pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None
+) -> torch.Tensor:
     """MSE over the rows of ``target [N, 3]`` without NaN (a particle the ground truth has lost);
-    a zero that keeps the graph if every row is NaN."""
+    a zero that keeps the graph if every row is NaN. ``weight [N]`` (optional) scales each
+    row's squared error; the mean is still over the rows, so weights of 1 give the plain MSE."""
     known = torch.isfinite(target).all(dim=1)
     if not bool(known.all()):
         if not bool(known.any()):
             return pred.sum() * 0.0
         pred, target = pred[known], target[known]
-    return torch.nn.functional.mse_loss(pred, target)
+        weight = None if weight is None else weight[known]
+    if weight is None:
+        return torch.nn.functional.mse_loss(pred, target)
+    return (weight.to(pred.dtype)[:, None] * (pred - target) ** 2).mean()
 
 
 class Objective:
