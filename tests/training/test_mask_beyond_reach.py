@@ -119,3 +119,27 @@ def test_the_unrolled_loss_does_not_depend_on_the_targets_it_masks():
             ]
     assert losses[True][0] == losses[True][1]
     assert losses[False][0] != losses[False][1]
+
+
+def test_an_unrolled_run_ends_at_the_step_that_masks_particles():
+    """A run that starts two steps before the lid goes: its second step masks the bed beyond
+    reach and ends the run, so the recorded frames after it do not count; without the mask
+    they do (the bed the model kept at rest would be asked to catch up with the fall)."""
+    sim = _model()
+    dt = float(sim.dt)
+    lid = sample_files("hopper")[:1]
+    data = WindowDataset(lid, history=5, frames_per_step=1, extra_steps=2)
+    removal = data.trajs[0].scene.wall("lid").removal_time
+    index = next(i for i in range(len(data)) if abs(data[i].time - (removal - 2 * dt)) < 1e-9)
+    w, v = data[index], WindowDataset(lid, history=5, frames_per_step=1, extra_steps=2)[index]
+    v.future[:, 1] += torch.tensor([0.0, 0.0, -1e-3])  # the third step's target, every particle
+    objective = Unrolled(steps=3, share=1.0)
+    losses = {}
+    for mask in (True, False):
+        collate = _Collate(sim, 0.0, 0, mask_beyond_reach=mask)
+        with torch.no_grad():
+            losses[mask] = [
+                float(objective.loss(sim, collate([x]), torch.Generator())) for x in (w, v)
+            ]
+    assert losses[True][0] == losses[True][1]
+    assert losses[False][0] != losses[False][1]

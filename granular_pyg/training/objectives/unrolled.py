@@ -18,8 +18,11 @@ class Unrolled(Objective):
     is the mean over the steps of the one-step loss against the acceleration that would take the
     model's state to LIGGGHTS's next positions, i.e. of the position error along the model's own
     run (scaled by ``1 / (dt^2 acc_std)``). Particles leave through the outflow as in a rollout.
-    With ``data.mask_beyond_reach``, each step near a wall event leaves out the particles
-    beyond the model's reach of it, as the one-step loss does.
+    With ``data.mask_beyond_reach``, a step near a wall event leaves out the particles beyond
+    the model's reach of it, as the one-step loss does, and ends the run: after it, those
+    particles' model state has missed the event (a bed still at rest where LIGGGHTS's has
+    fallen), and the next steps' targets would ask a bed at rest, that nothing can tell of the
+    event, to catch up.
     The edges and the walls' closest points are not differentiated: a wall edge's displacement
     carries the gradient of its particle's position only.
 
@@ -57,11 +60,13 @@ class Unrolled(Objective):
                 acc = sim.predict_acceleration(seq, w.walls, t, props=props, frame=frame).double()
                 pred = (acc - acc_mean) / acc_std
                 target = sim.target_acceleration(seq, known[:, u]).double()
+                missed = False
                 if mask:
                     reached = within_reach_of_events(w.walls, seq[:, -1].detach(), t, dt, sim.reach)
                     target[~reached.to(device)] = float("nan")
+                    missed = not bool(reached.all())
                 losses.append(masked_mse(pred, target))
-                if u + 1 == steps:
+                if u + 1 == steps or missed:
                     break
                 nxt = sim.integrate(seq, acc)
                 held = nxt[:, 2] >= w.outflow_z if w.outflow_z is not None else None
