@@ -97,6 +97,20 @@ def test_the_mask_is_the_same_for_the_scene_turned_mirrored_or_shifted():
         assert partial >= 2, scene_name  # the events leave part of the bed out
 
 
+def _assert_only_the_unmasked_loss_moves(sim, objective, w, v) -> None:
+    """``objective``'s loss on windows ``w`` and ``v`` (``w`` with some recorded frames moved):
+    the same with ``mask_beyond_reach``, different without it."""
+    losses = {}
+    for mask in (True, False):
+        collate = _Collate(sim, 0.0, 0, mask_beyond_reach=mask)
+        with torch.no_grad():
+            losses[mask] = [
+                float(objective.loss(sim, collate([x]), torch.Generator())) for x in (w, v)
+            ]
+    assert losses[True][0] == losses[True][1]
+    assert losses[False][0] != losses[False][1]
+
+
 def test_the_unrolled_loss_does_not_depend_on_the_targets_it_masks():
     """Unrolled runs near the lid's removal: with the mask, moving the recorded future of the
     particles beyond reach of the lid leaves the loss unchanged; without it, it does not."""
@@ -109,16 +123,7 @@ def test_the_unrolled_loss_does_not_depend_on_the_targets_it_masks():
     moved = WindowDataset(sample_files("hopper")[:1], history=5, frames_per_step=1, extra_steps=2)
     (v,) = [moved[i] for i in range(len(moved)) if abs(moved[i].time - lid.removal_time) < 1e-9]
     v.target_pos[far] += torch.tensor([0.0, 0.0, -1e-3])
-    objective = Unrolled(steps=2, share=1.0)
-    losses = {}
-    for mask in (True, False):
-        collate = _Collate(sim, 0.0, 0, mask_beyond_reach=mask)
-        with torch.no_grad():
-            losses[mask] = [
-                float(objective.loss(sim, collate([x]), torch.Generator())) for x in (w, v)
-            ]
-    assert losses[True][0] == losses[True][1]
-    assert losses[False][0] != losses[False][1]
+    _assert_only_the_unmasked_loss_moves(sim, Unrolled(steps=2, share=1.0), w, v)
 
 
 def test_an_unrolled_run_ends_at_the_step_that_masks_particles():
@@ -133,13 +138,4 @@ def test_an_unrolled_run_ends_at_the_step_that_masks_particles():
     index = next(i for i in range(len(data)) if abs(data[i].time - (removal - 2 * dt)) < 1e-9)
     w, v = data[index], WindowDataset(lid, history=5, frames_per_step=1, extra_steps=2)[index]
     v.future[:, 1] += torch.tensor([0.0, 0.0, -1e-3])  # the third step's target, every particle
-    objective = Unrolled(steps=3, share=1.0)
-    losses = {}
-    for mask in (True, False):
-        collate = _Collate(sim, 0.0, 0, mask_beyond_reach=mask)
-        with torch.no_grad():
-            losses[mask] = [
-                float(objective.loss(sim, collate([x]), torch.Generator())) for x in (w, v)
-            ]
-    assert losses[True][0] == losses[True][1]
-    assert losses[False][0] != losses[False][1]
+    _assert_only_the_unmasked_loss_moves(sim, Unrolled(steps=3, share=1.0), w, v)
