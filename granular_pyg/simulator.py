@@ -63,6 +63,7 @@ from granular_pyg.nn import (
     HorizontalEquivariantProcessor,
     Processor,
 )
+from granular_pyg.nn.rest_gate import gated
 from granular_pyg.progress import show_progress
 from granular_pyg.scenes import Materials, WallSet
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
@@ -206,6 +207,10 @@ class LearnedSimulator(nn.Module):
             False (older models), the walls at ``time``: the two look alike, and the model
             learns their average, a bed that sinks through a closed lid or creeps in a drum at
             rest.
+        rest_gate: multiply each particle's acceleration by a learned gate ``relu(1 + g)``
+            (:mod:`granular_pyg.nn.rest_gate`), exactly zero where ``g <= -1``: a bed at rest
+            can stay at rest to the bit, as static friction holds it, instead of by an output
+            balanced to 0.01 m/s^2. Starts open (the model without it, exactly).
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
@@ -230,6 +235,7 @@ class LearnedSimulator(nn.Module):
         contact_feature: bool = False,
         wall_nodes: str = "triangle",
         walls_over_step: bool = False,
+        rest_gate: bool = False,
     ) -> None:
         super().__init__()
         if history < 1:
@@ -261,6 +267,9 @@ class LearnedSimulator(nn.Module):
                 f"model.walls_over_step: expected true or false, got {walls_over_step!r}"
             )
         self.walls_over_step = walls_over_step
+        if not isinstance(rest_gate, bool):
+            raise InputError(f"model.rest_gate: expected true or false, got {rest_gate!r}")
+        self.rest_gate = rest_gate
         self.radius_feature, self.material_features = radius_feature, names
         self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
@@ -278,13 +287,19 @@ class LearnedSimulator(nn.Module):
             node_in = h + h * (h + 1) // 2 + 2 + NUM_TYPES + extra_in
             edge_in = 4 + int(self.contact_feature)
             self.model = HorizontalEquivariantNetwork(
-                node_in, h + 1, edge_in, processor, mlp_layers
+                node_in, h + 1, edge_in, processor, mlp_layers, rest_gate
             )
         else:
             node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES + extra_in
             edge_in = NUM_EDGE_FEATURES + int(self.contact_feature)
             self.model = EncodeProcessDecode(
-                node_in, edge_in, NUM_DIMS, processor, latent=latent, mlp_layers=mlp_layers
+                node_in,
+                edge_in,
+                NUM_DIMS,
+                processor,
+                latent=latent,
+                mlp_layers=mlp_layers,
+                rest_gate=rest_gate,
             )
         self.register_buffer("dt", torch.tensor(float(dt), dtype=torch.float64))
         self.network_dtype: torch.dtype | None = None  # None: float32 (see set_network_precision)
@@ -643,7 +658,20 @@ class LearnedSimulator(nn.Module):
 
     def forward(self, graph: Data | Batch) -> torch.Tensor:
         """Normalised acceleration ``[num real particles, 3]`` (float32) of a graph or a batch
-        of graphs."""
+        of graphs (with ``rest_gate``, the gated acceleration normalised)."""
+        out = self._network_output(graph)
+        if not self.rest_gate:
+            return out
+        return (self._gated_acceleration(out) - self.acc_mean) / self.acc_std
+
+    def _gated_acceleration(self, out: torch.Tensor) -> torch.Tensor:
+        """Physical acceleration ``[N, 3]`` (m/s^2) from the network's ``[N, 4]`` output with
+        ``rest_gate``: the normalised acceleration un-normalised, times the gate."""
+        return gated(out[:, :NUM_DIMS] * self.acc_std + self.acc_mean, out[:, NUM_DIMS:])
+
+    def _network_output(self, graph: Data | Batch) -> torch.Tensor:
+        """The network's output rows of the real particles: ``[N, 3]`` normalised
+        acceleration, ``[N, 4]`` with the gate logit last with ``rest_gate``."""
         compiled = self._compiled_network is not None and torch.is_grad_enabled()
         network = self._compiled_network if compiled else self.model
         if self.equivariant:
@@ -672,7 +700,11 @@ class LearnedSimulator(nn.Module):
         world frame (the arguments are :meth:`build_graph`'s; with a ``frame`` the network
         sees the turned scene and its prediction is turned back)."""
         graph = self.build_graph(pos_seq, walls, time, neighbours, ids, props, frame)
-        acc = self(graph) * self.acc_std + self.acc_mean
+        out = self._network_output(graph)
+        if self.rest_gate:  # physical directly: a closed gate gives exactly zero
+            acc = self._gated_acceleration(out)
+        else:
+            acc = out * self.acc_std + self.acc_mean
         if frame is not None:
             acc = acc @ frame.to(acc)
         return acc

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from granular_pyg.checkpoint.files import read_training_checkpoint
@@ -22,6 +23,7 @@ from granular_pyg.config import flatten
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory
+from granular_pyg.nn.rest_gate import RestGate
 from granular_pyg.simulator import LearnedSimulator
 
 __all__ = [
@@ -30,13 +32,15 @@ __all__ = [
     "load_initial_weights",
     "merge_cards",
     "with_initial_model",
+    "with_open_gate",
 ]
 
 #: Data settings a fine-tuning run takes over from the initial model's training run.
 INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
-#: Model keys a fine-tuning run may change: how the graph is searched, and how a step sees the
-#: walls (an older model can learn to see a lid removed or a drum started during the step).
-HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors", "walls_over_step")
+#: Model keys a fine-tuning run may change: how the graph is searched, how a step sees the
+#: walls (an older model can learn to see a lid removed or a drum started during the step),
+#: and the rest gate (it starts open: the initial model exactly).
+HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors", "walls_over_step", "rest_gate")
 
 
 def _read(init: str) -> dict:
@@ -152,7 +156,25 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
                 f"data's frame spacing {frame_dt:g} s; record frames every {dt:g} s / k"
             )
         cfg.data.frames_per_step = k
+        if cfg.model.get("rest_gate"):
+            ckpt["state_dict"] = with_open_gate(
+                ckpt["state_dict"], int(cfg.model.latent), int(cfg.model.mlp_layers)
+            )
     return cfg, ckpt
+
+
+def with_open_gate(state_dict: dict, latent: int, mlp_layers: int) -> dict:
+    """``state_dict`` (a training checkpoint's, ``sim.*`` keys) with a fresh, open rest gate
+    (:class:`~granular_pyg.nn.rest_gate.RestGate`, seeded; its output layer zero: the model
+    without it, exactly) where it has none, so that fine-tuning can switch the gate on."""
+    if any(k.startswith("sim.model.gate.") for k in state_dict):
+        return state_dict
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        gate = RestGate(latent, mlp_layers)
+    dtype = state_dict["sim.acc_std"].dtype if "sim.acc_std" in state_dict else torch.float32
+    fresh = {f"sim.model.gate.{k}": v.to(dtype) for k, v in gate.state_dict().items()}
+    return {**state_dict, **fresh}
 
 
 def load_initial_weights(sim: LearnedSimulator, ckpt: dict) -> None:

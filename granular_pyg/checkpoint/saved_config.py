@@ -30,6 +30,7 @@ _ADDED = {
     ("model", "contact_feature"): False,
     ("model", "wall_nodes"): "triangle",  # the paper's wall nodes, before surface patches
     ("model", "walls_over_step"): False,  # the walls at a step's start
+    ("model", "rest_gate"): False,  # no gate on the acceleration
     ("data", "augment"): False,  # windows in the recorded frame, before turns and mirrors
 }
 

@@ -42,6 +42,7 @@ from torch_geometric.utils import scatter
 
 from granular_pyg.errors import InputError
 from granular_pyg.nn.mlp import MLP, _check_int
+from granular_pyg.nn.rest_gate import RestGate
 
 __all__ = [
     "HorizontalEquivariantLayer",
@@ -164,6 +165,8 @@ class HorizontalEquivariantNetwork(nn.Module):
         edge_in: edge scalar inputs.
         processor: the processor; its ``latent`` is the network's.
         mlp_layers: hidden layers of the encoder and decoder MLPs.
+        rest_gate: add a :class:`~granular_pyg.nn.rest_gate.RestGate`: a fourth output column,
+            the gate logit (a scalar: equivariance holds).
     """
 
     def __init__(
@@ -173,6 +176,7 @@ class HorizontalEquivariantNetwork(nn.Module):
         edge_in: int,
         processor: HorizontalEquivariantProcessor,
         mlp_layers: int = 2,
+        rest_gate: bool = False,
     ) -> None:
         super().__init__()
         latent, channels = processor.latent, processor.channels
@@ -182,6 +186,7 @@ class HorizontalEquivariantNetwork(nn.Module):
         self.edge_encoder = MLP(edge_in, latent, latent, mlp_layers, layer_norm=True)
         self.processor = processor
         self.decoder = MLP(latent, latent, 1 + channels, mlp_layers, layer_norm=False)
+        self.gate = RestGate(latent, mlp_layers) if rest_gate else None
 
     def forward(
         self, x: Tensor, vec: Tensor, edge_index: Tensor, edge_attr: Tensor, edge_vec: Tensor
@@ -196,11 +201,14 @@ class HorizontalEquivariantNetwork(nn.Module):
             edge_vec: ``[E, 2]`` horizontal edge displacement over the cut-off.
 
         Returns:
-            ``[N, 3]``: ``(a_x, a_y, a_z)``.
+            ``[N, 3]``: ``(a_x, a_y, a_z)``; ``[N, 4]`` with the gate logit last.
         """
         s = self.node_encoder(x)
         v = self.vec_encoder(vec.transpose(1, 2)).transpose(1, 2)
         s, v = self.processor(s, v, edge_index, self.edge_encoder(edge_attr), edge_vec.to(s.dtype))
         out = self.decoder(s)
         horizontal = (out[:, 1:].unsqueeze(-1) * v.to(out.dtype)).sum(dim=1)  # [N, 2]
-        return torch.cat([horizontal, out[:, :1]], dim=1)
+        columns = [horizontal, out[:, :1]]
+        if self.gate is not None:
+            columns.append(self.gate(s).to(out.dtype))
+        return torch.cat(columns, dim=1)

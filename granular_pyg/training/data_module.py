@@ -115,20 +115,31 @@ class _Collate:
         drift_std: float = 0.0,
         mask_beyond_reach: bool = False,
         rest_weight: float = 1.0,
+        clean_share: float = 0.0,
     ):
         self.sim, self.noise_std, self.seed = sim, noise_std, seed
-        self.rest_weight = rest_weight
+        self.rest_weight, self.clean_share = rest_weight, clean_share
         self.offset_std, self.drift_std = offset_std, drift_std
         self.mask_beyond_reach = mask_beyond_reach
         self.correct_positions = correct_positions
         self.augment = augment
+
+    def _clean(self, w: Window) -> bool:
+        """Whether window ``w`` goes without noise (a share ``clean_share`` of the windows,
+        drawn from its own seed, so the noise of the others is as without the option)."""
+        if self.clean_share <= 0:
+            return False
+        key = zlib.crc32(f"clean/{self.seed}/{w.epoch}/{w.index}".encode())
+        return bool(torch.rand((), generator=torch.Generator().manual_seed(key)) < self.clean_share)
 
     def __call__(self, windows: list[Window]) -> Batch:
         graphs = []
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
             rest = at_rest(pos_seq, float(self.sim.dt)) if self.rest_weight != 1.0 else None
-            if self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0:
+            if (self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0) and not (
+                self._clean(w)
+            ):
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
                     self.noise_std,
@@ -192,6 +203,10 @@ class TrajectoryDataModule(L.LightningDataModule):
             (slower than 1 mm/s at every step: :func:`at_rest`) this many times more. A bed
             at rest needs its acceleration to about 0.01 m/s^2, in a loss whose scale is set
             by the flow's (m/s^2).
+        clean_share: the share of training windows (0-1) that get no noise at all: a bed at
+            rest exactly as the truth holds it, what a model's rest gate
+            (``model.rest_gate``) learns to close on; every other window is noised as without
+            it.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -219,6 +234,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         drift_noise_std: float = 0.0,
         mask_beyond_reach: bool = False,
         rest_weight: float = 1.0,
+        clean_share: float = 0.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         trajectories: dict | None = None,
@@ -244,6 +260,9 @@ class TrajectoryDataModule(L.LightningDataModule):
             )
         self.mask_beyond_reach = mask_beyond_reach
         self.rest_weight = finite_number("data.rest_weight", rest_weight, minimum=0.0)
+        self.clean_share = finite_number("data.clean_share", clean_share, minimum=0.0)
+        if self.clean_share > 1:
+            raise InputError(f"data.clean_share: expected a share from 0 to 1, got {clean_share!r}")
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
@@ -311,6 +330,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         drift: float = 0.0,
         mask: bool = False,
         rest_weight: float = 1.0,
+        clean_share: float = 0.0,
         **kwargs,
     ) -> DataLoader:
         if self.sim is None:
@@ -325,6 +345,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             drift,
             mask,
             rest_weight,
+            clean_share,
         )
         sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
@@ -353,6 +374,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.drift_noise_std,
             self.mask_beyond_reach,
             self.rest_weight,
+            self.clean_share,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

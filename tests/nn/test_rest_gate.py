@@ -1,0 +1,158 @@
+"""``model.rest_gate``: the acceleration times ``relu(1 + g)``. Open at initialisation (the model
+without it, exactly), closed it holds a bed to the bit, equivariant either way; fine-tuning may
+switch it on; ``data.clean_share`` gives it windows without noise."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from granular_pyg.checkpoint.fine_tune import load_initial_weights, with_open_gate
+from granular_pyg.data.windows import WindowDataset
+from granular_pyg.geometry import horizontal_frame
+from granular_pyg.io import read_trajectory
+from granular_pyg.nn import HorizontalEquivariantProcessor, Processor
+from granular_pyg.nn.rest_gate import gated
+from granular_pyg.samples import sample_files
+from granular_pyg.scenes import WallSet
+from granular_pyg.scenes.redescribe import turned_scene
+from granular_pyg.simulator import LearnedSimulator, ParticleProps
+from granular_pyg.training.data_module import _Collate
+
+
+def _sim(processor: str, rest_gate: bool, normals: str = "both") -> LearnedSimulator:
+    torch.manual_seed(3)
+    proc = (
+        HorizontalEquivariantProcessor(latent=24, num_steps=2, channels=6)
+        if processor == "equivariant"
+        else Processor(latent=24, num_steps=2, aggr="mean")
+    )
+    sim = LearnedSimulator(
+        proc,
+        radius=0.0075,
+        normals=normals,
+        latent=24,
+        dt=0.005,
+        contact_feature=True,
+        rest_gate=rest_gate,
+    )
+    sim.set_normalization([0.01, -0.02, -0.2], [0.1, 0.12, 0.3], [0.3, 0.1, -9.8], [5.0, 4.0, 8.0])
+    return sim.double().eval()
+
+
+def _bed():
+    """The bundled hopper's settled bed (frame 0, lid closed) held: a history at rest, the
+    trajectory, the time and the particle properties."""
+    traj = read_trajectory(sample_files("hopper")[0])
+    seq = torch.from_numpy(traj.positions[0]).double()[:, None].repeat(1, 6, 1)
+    return traj, seq, float(traj.times[0]), ParticleProps.of(traj)
+
+
+def _flow(frame: int):
+    """A history of the bundled hopper's flow ending at ``frame``: the trajectory, the present
+    particles' ``[N, 6, 3]`` positions, the time and their properties."""
+    traj = read_trajectory(sample_files("hopper")[-1])
+    seq = torch.from_numpy(traj.positions[frame - 5 : frame + 1]).permute(1, 0, 2).double()
+    present = torch.isfinite(seq).all(2).all(1)
+    return (
+        traj,
+        seq[present].contiguous(),
+        float(traj.times[frame]),
+        ParticleProps.of(traj)[present],
+    )
+
+
+def _gate_layer(sim):
+    return sim.model.gate.mlp[-1]
+
+
+def test_gated_tiny_cases():
+    acc = torch.tensor([[1.0, -2.0, 3.0], [4.0, 5.0, -6.0], [1.0, 1.0, 1.0]])
+    logits = torch.tensor([[0.0], [-1.0], [-0.5]])
+    assert torch.equal(gated(acc, logits), torch.tensor([[1.0, -2.0, 3.0], [0, 0, 0], [0.5] * 3]))
+
+
+@pytest.mark.parametrize("processor", ["bgnn", "equivariant"])
+def test_an_open_gate_is_the_model_without_it(processor):
+    plain, with_gate = _sim(processor, False), _sim(processor, True)
+    missing, unexpected = with_gate.load_state_dict(plain.state_dict(), strict=False)
+    assert not unexpected and missing and all(k.startswith("model.gate.") for k in missing)
+    traj, seq, t, props = _flow(30)
+    with torch.no_grad():
+        a = plain.predict_acceleration(seq, WallSet(traj.scene), t, props=props)
+        b = with_gate.predict_acceleration(seq, WallSet(traj.scene), t, props=props)
+    assert torch.equal(a, b)
+
+
+@pytest.mark.parametrize("processor", ["bgnn", "equivariant"])
+def test_a_closed_gate_holds_a_bed_at_rest_to_the_bit(processor):
+    sim = _sim(processor, True)
+    torch.nn.init.constant_(_gate_layer(sim).bias, -3.0)  # g = -3 everywhere: closed
+    traj, seq, t, props = _bed()
+    walls = WallSet(traj.scene)
+    start = seq.clone()
+    for k in range(10):
+        nxt = sim.step(seq, walls, t + k * float(sim.dt), props=props)
+        seq = torch.cat([seq[:, 1:], nxt[:, None]], dim=1)
+    assert torch.equal(seq, start)
+    # a closed gate stops the acceleration, not the motion: a bed moving at 1 mm/s keeps it
+    v = torch.tensor([0.0, 0.0, -1e-3]) * float(sim.dt)
+    moving = start + torch.arange(6).double()[None, :, None] * v
+    nxt = sim.step(moving, walls, t, props=props)
+    torch.testing.assert_close(nxt, moving[:, -1] + v, rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("normals", ["none", "single", "both"])
+def test_a_gated_equivariant_model_turns_and_mirrors_with_the_scene(normals):
+    sim = _sim("equivariant", True, normals)
+    layer = _gate_layer(sim)
+    torch.manual_seed(5)
+    torch.nn.init.normal_(layer.weight, std=1.0)  # a gate that varies from particle to particle
+    torch.nn.init.constant_(layer.bias, -0.5)
+    traj, seq, t, props = _flow(30)
+    with torch.no_grad():
+        acc = sim.predict_acceleration(seq, WallSet(traj.scene), t, props=props)
+        for q in (horizontal_frame(37.0), horizontal_frame(211.0, mirror=True)):
+            moved = sim.predict_acceleration(
+                seq @ q.T, WallSet(turned_scene(traj.scene, q)), t, props=props
+            )
+            assert torch.allclose(moved, acc @ q.T, atol=1e-5 * float(acc.abs().max()), rtol=0)
+
+
+def test_fine_tuning_switches_the_gate_on_open():
+    plain, with_gate = _sim("equivariant", False), _sim("equivariant", True)
+    torch.nn.init.normal_(with_gate.model.decoder[-1].weight)  # differs until loaded
+    state = {f"sim.{k}": v for k, v in plain.state_dict().items()}
+    load_initial_weights(with_gate, {"state_dict": with_open_gate(state, 24, 2)})
+    assert with_open_gate(state, 24, 2).keys() - state.keys()  # the gate was added
+    gated_state = {f"sim.{k}": v for k, v in with_gate.state_dict().items()}
+    assert with_open_gate(gated_state, 24, 2) is gated_state  # a gate there is kept
+    assert torch.equal(
+        _gate_layer(with_gate).weight, torch.zeros_like(_gate_layer(with_gate).weight)
+    )
+    traj, seq, t, props = _bed()
+    with torch.no_grad():
+        a = plain.predict_acceleration(seq, WallSet(traj.scene), t, props=props)
+        b = with_gate.predict_acceleration(seq, WallSet(traj.scene), t, props=props)
+    assert torch.equal(a, b)
+
+
+def test_clean_share_leaves_a_share_of_windows_without_noise():
+    sim = LearnedSimulator(Processor(latent=16, num_steps=2), radius=0.0075, latent=16, dt=0.0025)
+    sim.set_normalization([0.0, 0.0, -0.2], [0.1, 0.1, 0.3], [0.0, 0.0, -9.8], [5.0, 5.0, 8.0])
+    data = WindowDataset(sample_files("hopper")[:1], history=5, frames_per_step=1)
+    windows = [data[(epoch, (7 * epoch) % len(data))] for epoch in range(40)]
+    clean = _Collate(sim, 0.0, 0)
+    noisy = _Collate(sim, 1e-4, 0, offset_std=1e-4)
+    half = _Collate(sim, 1e-4, 0, offset_std=1e-4, clean_share=0.5)
+    always = _Collate(sim, 1e-4, 0, offset_std=1e-4, clean_share=1.0)
+    kinds = []
+    for w in windows:
+        y_clean, y_noisy = clean([w]).y, noisy([w]).y
+        assert not torch.equal(y_clean, y_noisy)
+        assert torch.equal(always([w]).y, y_clean)
+        y_half = half([w]).y
+        # a window is either clean or noised exactly as without the option
+        assert torch.equal(y_half, y_clean) or torch.equal(y_half, y_noisy)
+        kinds.append(torch.equal(y_half, y_clean))
+    assert 8 <= sum(kinds) <= 32  # 40 windows, half clean: binomial, 5.7 sigma either side
