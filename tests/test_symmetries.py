@@ -35,7 +35,13 @@ def _window(kind: str, frame: int):
     return traj, window[present].contiguous(), float(traj.times[frame]), present
 
 
-def _sim(processor: str, normals: str, wall_nodes: str = "patch", dtype=torch.float64):
+def _sim(
+    processor: str,
+    normals: str,
+    wall_nodes: str = "patch",
+    dtype=torch.float64,
+    rest_gate: bool = False,
+):
     torch.manual_seed(3)
     proc = (
         HorizontalEquivariantProcessor(latent=24, num_steps=2, channels=6)
@@ -51,6 +57,7 @@ def _sim(processor: str, normals: str, wall_nodes: str = "patch", dtype=torch.fl
         contact_feature=True,
         radius_feature=True,
         wall_nodes=wall_nodes,
+        rest_gate=rest_gate,
     )
     sim.set_normalization([0.01, -0.02, -0.2], [0.1, 0.12, 0.3], [0.3, 0.1, -9.8], [5.0, 4.0, 8.0])
     return sim.to(dtype).eval()

@@ -11,33 +11,14 @@ from granular_pyg.checkpoint.fine_tune import load_initial_weights, with_open_ga
 from granular_pyg.data.windows import WindowDataset
 from granular_pyg.geometry import horizontal_frame
 from granular_pyg.io import read_trajectory
-from granular_pyg.nn import HorizontalEquivariantProcessor, Processor
+from granular_pyg.nn import Processor
 from granular_pyg.nn.rest_gate import gated
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.scenes.redescribe import turned_scene
 from granular_pyg.simulator import LearnedSimulator, ParticleProps
 from granular_pyg.training.data_module import _Collate
-
-
-def _sim(processor: str, rest_gate: bool, normals: str = "both") -> LearnedSimulator:
-    torch.manual_seed(3)
-    proc = (
-        HorizontalEquivariantProcessor(latent=24, num_steps=2, channels=6)
-        if processor == "equivariant"
-        else Processor(latent=24, num_steps=2, aggr="mean")
-    )
-    sim = LearnedSimulator(
-        proc,
-        radius=0.0075,
-        normals=normals,
-        latent=24,
-        dt=0.005,
-        contact_feature=True,
-        rest_gate=rest_gate,
-    )
-    sim.set_normalization([0.01, -0.02, -0.2], [0.1, 0.12, 0.3], [0.3, 0.1, -9.8], [5.0, 4.0, 8.0])
-    return sim.double().eval()
+from tests.test_symmetries import _sim, _window
 
 
 def _bed():
@@ -49,17 +30,11 @@ def _bed():
 
 
 def _flow(frame: int):
-    """A history of the bundled hopper's flow ending at ``frame``: the trajectory, the present
-    particles' ``[N, 6, 3]`` positions, the time and their properties."""
-    traj = read_trajectory(sample_files("hopper")[-1])
-    seq = torch.from_numpy(traj.positions[frame - 5 : frame + 1]).permute(1, 0, 2).double()
-    present = torch.isfinite(seq).all(2).all(1)
-    return (
-        traj,
-        seq[present].contiguous(),
-        float(traj.times[frame]),
-        ParticleProps.of(traj)[present],
-    )
+    """The bundled hopper's flow ending at ``frame`` (:func:`tests.test_symmetries._window`):
+    the trajectory, the present particles' ``[N, 6, 3]`` positions, the time and their
+    properties."""
+    traj, seq, t, present = _window("hopper", frame)
+    return traj, seq, t, ParticleProps.of(traj)[present]
 
 
 def _gate_layer(sim):
@@ -74,7 +49,7 @@ def test_gated_tiny_cases():
 
 @pytest.mark.parametrize("processor", ["bgnn", "equivariant"])
 def test_an_open_gate_is_the_model_without_it(processor):
-    plain, with_gate = _sim(processor, False), _sim(processor, True)
+    plain, with_gate = _sim(processor, "both"), _sim(processor, "both", rest_gate=True)
     missing, unexpected = with_gate.load_state_dict(plain.state_dict(), strict=False)
     assert not unexpected and missing and all(k.startswith("model.gate.") for k in missing)
     traj, seq, t, props = _flow(30)
@@ -86,7 +61,7 @@ def test_an_open_gate_is_the_model_without_it(processor):
 
 @pytest.mark.parametrize("processor", ["bgnn", "equivariant"])
 def test_a_closed_gate_holds_a_bed_at_rest_to_the_bit(processor):
-    sim = _sim(processor, True)
+    sim = _sim(processor, "both", rest_gate=True)
     torch.nn.init.constant_(_gate_layer(sim).bias, -3.0)  # g = -3 everywhere: closed
     traj, seq, t, props = _bed()
     walls = WallSet(traj.scene)
@@ -104,7 +79,7 @@ def test_a_closed_gate_holds_a_bed_at_rest_to_the_bit(processor):
 
 @pytest.mark.parametrize("normals", ["none", "single", "both"])
 def test_a_gated_equivariant_model_turns_and_mirrors_with_the_scene(normals):
-    sim = _sim("equivariant", True, normals)
+    sim = _sim("equivariant", normals, rest_gate=True)
     layer = _gate_layer(sim)
     torch.manual_seed(5)
     torch.nn.init.normal_(layer.weight, std=1.0)  # a gate that varies from particle to particle
@@ -120,7 +95,7 @@ def test_a_gated_equivariant_model_turns_and_mirrors_with_the_scene(normals):
 
 
 def test_fine_tuning_switches_the_gate_on_open():
-    plain, with_gate = _sim("equivariant", False), _sim("equivariant", True)
+    plain, with_gate = _sim("equivariant", "both"), _sim("equivariant", "both", rest_gate=True)
     torch.nn.init.normal_(with_gate.model.decoder[-1].weight)  # differs until loaded
     state = {f"sim.{k}": v for k, v in plain.state_dict().items()}
     load_initial_weights(with_gate, {"state_dict": with_open_gate(state, 24, 2)})
