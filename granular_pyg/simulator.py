@@ -659,10 +659,17 @@ class LearnedSimulator(nn.Module):
     def forward(self, graph: Data | Batch) -> torch.Tensor:
         """Normalised acceleration ``[num real particles, 3]`` (float32) of a graph or a batch
         of graphs (with ``rest_gate``, the gated acceleration normalised)."""
+        return self.forward_with_gate(graph)[0]
+
+    def forward_with_gate(self, graph: Data | Batch) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """:meth:`forward`'s normalised acceleration ``[N, 3]`` and, with ``rest_gate``, the
+        gate logits ``[N, 1]`` it was gated with (None without), from one network pass: what
+        the gate's own loss (:func:`~granular_pyg.nn.rest_gate.gate_hinge`) needs."""
         out = self._network_output(graph)
         if not self.rest_gate:
-            return out
-        return (self._gated_acceleration(out) - self.acc_mean) / self.acc_std
+            return out, None
+        acc = (self._gated_acceleration(out) - self.acc_mean) / self.acc_std
+        return acc, out[:, NUM_DIMS:]
 
     def _gated_acceleration(self, out: torch.Tensor) -> torch.Tensor:
         """Physical acceleration ``[N, 3]`` (m/s^2) from the network's ``[N, 4]`` output with

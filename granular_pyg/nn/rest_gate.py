@@ -12,6 +12,12 @@ stays equivariant.
 
 Its output layer starts at zero: ``g = 0``, gate 1, the network without the gate exactly, so a
 trained model can learn the gate by fine-tuning.
+
+The gate learns from its own loss, not only through the acceleration it multiplies (whose
+gradient vanishes with the acceleration of a bed at rest): :func:`gate_labels` marks, from the
+clean truth, the particles to shut (at rest in their history and their target, in windows
+without noise) and those to open (their target moves); :func:`gate_hinge` pushes ``g`` below
+``-1 - GATE_MARGIN`` for the first and above 0 for the second.
 """
 
 from __future__ import annotations
@@ -21,7 +27,10 @@ from torch import Tensor, nn
 
 from granular_pyg.nn.mlp import MLP
 
-__all__ = ["RestGate", "gated"]
+__all__ = ["GATE_MARGIN", "RestGate", "gate_hinge", "gate_labels", "gated"]
+
+#: How far below -1 a shut particle's logit is pushed, so that small input changes keep it shut.
+GATE_MARGIN = 0.5
 
 
 class RestGate(nn.Module):
@@ -46,3 +55,34 @@ def gated(acceleration: Tensor, logits: Tensor) -> Tensor:
     """``acceleration [N, 3]`` (m/s^2) times ``relu(1 + logits [N, 1])``: exactly zero where
     ``logits <= -1``, unchanged where ``logits == 0``."""
     return acceleration * torch.relu(1.0 + logits.to(acceleration.dtype))
+
+
+def gate_labels(
+    rest_history: Tensor, target_step: Tensor, step_at_rest: float, clean: bool
+) -> Tensor:
+    """``[N]`` labels for :func:`gate_hinge`: -1 shut, +1 open, 0 neither.
+
+    Args:
+        rest_history: ``[N]`` bool, the particle is at rest at every step of its clean history.
+        target_step: ``[N, 3]`` (m) the clean target position minus the last clean position
+            (NaN: a particle the truth has lost, left unlabelled).
+        step_at_rest: the largest step (m) of a particle at rest.
+        clean: the window's inputs are the truth without noise; only then is a particle at
+            rest labelled shut (a noised input at rest in the truth is not at rest).
+    """
+    step = torch.linalg.vector_norm(target_step, dim=-1)
+    labels = torch.zeros(step.shape, dtype=target_step.dtype)
+    labels[step >= step_at_rest] = 1.0
+    if clean:
+        labels[rest_history & (step < step_at_rest)] = -1.0
+    return labels
+
+
+def gate_hinge(logits: Tensor, labels: Tensor) -> Tensor:
+    """Mean over the ``N`` particles of ``relu(g + 1 + GATE_MARGIN)`` where ``labels [N]`` is
+    -1 (shut: the gate must stay closed under small changes) and ``relu(-g)`` where it is +1
+    (open: the acceleration passes whole); ``logits [N, 1]`` (``g``). Zero without labels."""
+    g = logits[:, 0]
+    shut = torch.relu(g + 1.0 + GATE_MARGIN) * (labels < 0)
+    open_ = torch.relu(-g) * (labels > 0)
+    return (shut + open_).mean()

@@ -14,6 +14,7 @@ from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError, finite_number, whole_number
 from granular_pyg.geometry import random_horizontal_frame
+from granular_pyg.nn.rest_gate import gate_labels
 from granular_pyg.simulator import LearnedSimulator
 from granular_pyg.training.objectives import Objective
 from granular_pyg.training.reach_mask import within_reach_of_events
@@ -101,7 +102,8 @@ class _Collate:
     are built. The noise of a window is seeded by ``(seed, epoch, window)``, so it does not
     depend on workers or on resuming. With ``augment`` each window is seen in a random frame
     turned about gravity and mirrored half the time (``window.frame``, seeded the same way):
-    features and target in that frame, the graph unchanged.
+    features and target in that frame, the graph unchanged. With a model's rest gate each
+    particle also gets its gate label (``graph.gate_label [N]``: :func:`gate_labels`).
     """
 
     def __init__(
@@ -136,10 +138,13 @@ class _Collate:
         graphs = []
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
-            rest = at_rest(pos_seq, float(self.sim.dt)) if self.rest_weight != 1.0 else None
-            if (self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0) and not (
-                self._clean(w)
-            ):
+            dt, gate = float(self.sim.dt), self.sim.rest_gate
+            rest = at_rest(pos_seq, dt) if self.rest_weight != 1.0 or gate else None
+            noised = self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0
+            clean = not noised or self._clean(w)
+            step = target - pos_seq[:, -1]
+            labels = gate_labels(rest, step, REST_SPEED * dt, clean) if gate else None
+            if not clean:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
                     self.noise_std,
@@ -163,7 +168,9 @@ class _Collate:
                     w.walls, pos_seq[:, -1], w.time, float(self.sim.dt), self.sim.reach
                 )
                 graph.y[~reached] = float("nan")
-            if rest is not None:
+            if labels is not None:  # the rest gate's own loss; none where the loss masks
+                graph.gate_label = torch.where(torch.isfinite(graph.y).all(dim=1), labels, 0.0)
+            if self.rest_weight != 1.0:
                 graph.weight = torch.where(rest, self.rest_weight, 1.0).to(graph.y.dtype)
             graphs.append(graph)
         batch = Batch.from_data_list(graphs)
@@ -316,6 +323,12 @@ class TrajectoryDataModule(L.LightningDataModule):
         sim.set_normalization(
             self.stats.vel_mean, self.stats.vel_std, self.stats.acc_mean, self.stats.acc_std
         )
+        noised = self.noise_std > 0 or self.offset_noise_std > 0 or self.drift_noise_std > 0
+        if sim.rest_gate and noised and self.clean_share == 0:
+            raise InputError(
+                "model.rest_gate learns to shut only on windows without noise: set "
+                "data.clean_share above 0 (e.g. 0.25), or model.rest_gate=false"
+            )
         sim.dt.fill_(self.dt)
         self.sim = sim
 

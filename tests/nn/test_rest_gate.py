@@ -1,6 +1,7 @@
 """``model.rest_gate``: the acceleration times ``relu(1 + g)``. Open at initialisation (the model
 without it, exactly), closed it holds a bed to the bit, equivariant either way; fine-tuning may
-switch it on; ``data.clean_share`` gives it windows without noise."""
+switch it on; ``data.clean_share`` gives it windows without noise, where its own loss (labels
+from the clean truth, a hinge on ``g``) teaches it to shut on a bed at rest."""
 
 from __future__ import annotations
 
@@ -9,15 +10,17 @@ import torch
 
 from granular_pyg.checkpoint.fine_tune import load_initial_weights, with_open_gate
 from granular_pyg.data.windows import WindowDataset
+from granular_pyg.errors import InputError
 from granular_pyg.geometry import horizontal_frame
 from granular_pyg.io import read_trajectory
 from granular_pyg.nn import Processor
-from granular_pyg.nn.rest_gate import gated
+from granular_pyg.nn.rest_gate import GATE_MARGIN, gate_hinge, gate_labels, gated
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.scenes.redescribe import turned_scene
 from granular_pyg.simulator import LearnedSimulator, ParticleProps
-from granular_pyg.training.data_module import _Collate
+from granular_pyg.training.data_module import REST_SPEED, TrajectoryDataModule, _Collate
+from granular_pyg.training.objectives import OneStep
 from tests.test_symmetries import _sim, _window
 
 
@@ -131,3 +134,66 @@ def test_clean_share_leaves_a_share_of_windows_without_noise():
         assert torch.equal(y_half, y_clean) or torch.equal(y_half, y_noisy)
         kinds.append(torch.equal(y_half, y_clean))
     assert 8 <= sum(kinds) <= 32  # 40 windows, half clean: binomial, 5.7 sigma either side
+
+
+def test_gate_labels_tiny_cases():
+    rest = torch.tensor([True, True, False, True, False])
+    step = torch.tensor([[0, 0, 1e-6], [0, 2e-5, 0], [0, 0, 0], [float("nan")] * 3, [3e-5, 0, 0]])
+    # at rest in history and target: shut; target moving: open; lost (NaN) or only slowing: 0
+    clean = gate_labels(rest, step.double(), 1e-5, clean=True)
+    assert clean.tolist() == [-1.0, 1.0, 0.0, 0.0, 1.0]
+    # noised inputs are not at rest: nobody is shut
+    assert gate_labels(rest, step.double(), 1e-5, clean=False).tolist() == [0, 1, 0, 0, 1]
+
+
+def test_gate_hinge_tiny_cases():
+    logits = torch.tensor([[-2.0], [-1.0], [0.5], [-0.25], [3.0]])
+    labels = torch.tensor([-1.0, -1.0, 1.0, 1.0, 0.0])
+    # shut: relu(g + 1 + margin) = 0 and margin; open: relu(-g) = 0 and 0.25; unlabelled: 0
+    expected = (0.0 + GATE_MARGIN + 0.0 + 0.25 + 0.0) / 5
+    assert gate_hinge(logits, labels).item() == pytest.approx(expected, abs=1e-7)
+    assert gate_hinge(logits, torch.zeros(5)).item() == 0.0
+
+
+def _bed_windows():
+    """Windows of the bundled hopper's first frames, its bed at rest on the closed lid."""
+    data = WindowDataset(sample_files("hopper")[:1], history=5, frames_per_step=1)
+    return [data[(0, i)] for i in range(3)]
+
+
+def test_collate_labels_a_bed_at_rest_shut_only_without_noise():
+    sim = _sim("equivariant", "both", rest_gate=True)
+    windows = _bed_windows()
+    clean = _Collate(sim, 1e-4, 0, clean_share=1.0)(windows)
+    noisy = _Collate(sim, 1e-4, 0)(windows)
+    assert (clean.gate_label == -1).float().mean() > 0.5  # most of the settled bed
+    assert not (noisy.gate_label == -1).any()
+    # each shut particle moves less than the rest speed over the step, in the truth
+    sizes = [len(w.pos_seq) for w in windows]
+    for w, labels in zip(windows, clean.gate_label.split(sizes), strict=True):
+        step = (w.target_pos - w.pos_seq[:, -1]).norm(dim=1)
+        assert (step[labels == -1] < REST_SPEED * float(sim.dt)).all()
+
+
+def test_the_gate_loss_shuts_the_gate_on_a_bed_at_rest():
+    """Through the acceleration alone a bed at rest barely moves the gate (its gradient scales
+    with that acceleration); with its own loss, a few optimiser steps shut it."""
+    sim = _sim("equivariant", "both", rest_gate=True)
+    batch = _Collate(sim, 1e-4, 0, clean_share=1.0)(_bed_windows())
+    shut = batch.gate_label == -1
+    opt = torch.optim.Adam(sim.model.gate.parameters(), lr=1e-2)
+    for _ in range(60):
+        opt.zero_grad()
+        OneStep().loss(sim, batch, torch.Generator()).backward()
+        opt.step()
+    with torch.no_grad():
+        out = sim._network_output(batch)
+    closed = out[:, 3] <= -1.0
+    assert closed[shut].float().mean() > 0.95
+    assert not sim._gated_acceleration(out)[closed].any()  # exactly zero acceleration
+
+
+def test_a_rest_gate_without_clean_windows_is_refused():
+    data = TrajectoryDataModule(sample="hopper", noise_std=1e-4, clean_share=0.0)
+    with pytest.raises(InputError, match=r"data\.clean_share"):
+        data.attach(_sim("equivariant", "both", rest_gate=True))
