@@ -27,14 +27,20 @@ from torch import Tensor, nn
 
 from granular_pyg.nn.mlp import MLP
 
-__all__ = ["GATE_MARGIN", "RestGate", "gate_hinge", "gate_labels", "gated"]
+__all__ = ["GATE_GAIN", "GATE_MARGIN", "RestGate", "gate_hinge", "gate_labels", "gated"]
 
 #: How far below -1 a shut particle's logit is pushed, so that small input changes keep it shut.
 GATE_MARGIN = 0.5
 
+#: The logit is this times the MLP's output. Adam moves each weight by about the learning rate
+#: per step, so at fine-tuning rates (2e-4) a unit gain took the logit 0.002 of the way to
+#: shut in 300 steps; with this gain it crosses its range (0 to -1.5) in about a hundred.
+GATE_GAIN = 20.0
+
 
 class RestGate(nn.Module):
-    """``[N, latent]`` node latents -> ``[N, 1]`` gate logits ``g`` (0 at initialisation).
+    """``[N, latent]`` node latents -> ``[N, 1]`` gate logits ``g`` (0 at initialisation):
+    :data:`GATE_GAIN` times an MLP's output.
 
     Args:
         latent: width of the node latents.
@@ -48,7 +54,7 @@ class RestGate(nn.Module):
         nn.init.zeros_(self.mlp[-1].bias)
 
     def forward(self, latent: Tensor) -> Tensor:
-        return self.mlp(latent)
+        return GATE_GAIN * self.mlp(latent)
 
 
 def gated(acceleration: Tensor, logits: Tensor) -> Tensor:

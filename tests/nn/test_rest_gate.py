@@ -14,7 +14,7 @@ from granular_pyg.errors import InputError
 from granular_pyg.geometry import horizontal_frame
 from granular_pyg.io import read_trajectory
 from granular_pyg.nn import Processor
-from granular_pyg.nn.rest_gate import GATE_MARGIN, gate_hinge, gate_labels, gated
+from granular_pyg.nn.rest_gate import GATE_GAIN, GATE_MARGIN, gate_hinge, gate_labels, gated
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.scenes.redescribe import turned_scene
@@ -85,8 +85,9 @@ def test_a_gated_equivariant_model_turns_and_mirrors_with_the_scene(normals):
     sim = _sim("equivariant", normals, rest_gate=True)
     layer = _gate_layer(sim)
     torch.manual_seed(5)
-    torch.nn.init.normal_(layer.weight, std=1.0)  # a gate that varies from particle to particle
-    torch.nn.init.constant_(layer.bias, -0.5)
+    # a gate that varies from particle to particle, logits about -0.5 +- 1
+    torch.nn.init.normal_(layer.weight, std=1.0 / GATE_GAIN)
+    torch.nn.init.constant_(layer.bias, -0.5 / GATE_GAIN)
     traj, seq, t, props = _flow(30)
     with torch.no_grad():
         acc = sim.predict_acceleration(seq, WallSet(traj.scene), t, props=props)
