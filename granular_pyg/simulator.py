@@ -673,8 +673,11 @@ class LearnedSimulator(nn.Module):
 
     def _gated_acceleration(self, out: torch.Tensor) -> torch.Tensor:
         """Physical acceleration ``[N, 3]`` (m/s^2) from the network's ``[N, 4]`` output with
-        ``rest_gate``: the normalised acceleration un-normalised, times the gate."""
-        return gated(out[:, :NUM_DIMS] * self.acc_std + self.acc_mean, out[:, NUM_DIMS:])
+        ``rest_gate``: the normalised acceleration un-normalised, times the gate. The gate
+        learns from its own labels only (``gate_hinge``): the acceleration's loss does not
+        reach it, or noised inputs at rest, whose target pushes them back, would hold it open."""
+        logits = out[:, NUM_DIMS:].detach()
+        return gated(out[:, :NUM_DIMS] * self.acc_std + self.acc_mean, logits)
 
     def _network_output(self, graph: Data | Batch) -> torch.Tensor:
         """The network's output rows of the real particles: ``[N, 3]`` normalised

@@ -17,7 +17,9 @@ The gate learns from its own loss, not only through the acceleration it multipli
 gradient vanishes with the acceleration of a bed at rest): :func:`gate_labels` marks, from the
 clean truth, the particles to shut (at rest in their history and their target, in windows
 without noise) and those to open (their target moves); :func:`gate_hinge` pushes ``g`` below
-``-1 - GATE_MARGIN`` for the first and above 0 for the second.
+``-1 - GATE_MARGIN`` for the first and to 0 (gate 1) for the second. The acceleration's loss
+does not reach the gate (the simulator detaches it): in windows with noise a particle at rest
+in the truth must be pushed back, and that pull held the gate open.
 """
 
 from __future__ import annotations
@@ -86,9 +88,10 @@ def gate_labels(
 
 def gate_hinge(logits: Tensor, labels: Tensor) -> Tensor:
     """Mean over the ``N`` particles of ``relu(g + 1 + GATE_MARGIN)`` where ``labels [N]`` is
-    -1 (shut: the gate must stay closed under small changes) and ``relu(-g)`` where it is +1
-    (open: the acceleration passes whole); ``logits [N, 1]`` (``g``). Zero without labels."""
+    -1 (shut: the gate must stay closed under small changes) and ``|g|`` where it is +1 (open:
+    the gate 1, the acceleration passes whole); ``logits [N, 1]`` (``g``). Zero without
+    labels."""
     g = logits[:, 0]
     shut = torch.relu(g + 1.0 + GATE_MARGIN) * (labels < 0)
-    open_ = torch.relu(-g) * (labels > 0)
+    open_ = g.abs() * (labels > 0)
     return (shut + open_).mean()

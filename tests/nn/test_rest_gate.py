@@ -150,8 +150,8 @@ def test_gate_labels_tiny_cases():
 def test_gate_hinge_tiny_cases():
     logits = torch.tensor([[-2.0], [-1.0], [0.5], [-0.25], [3.0]])
     labels = torch.tensor([-1.0, -1.0, 1.0, 1.0, 0.0])
-    # shut: relu(g + 1 + margin) = 0 and margin; open: relu(-g) = 0 and 0.25; unlabelled: 0
-    expected = (0.0 + GATE_MARGIN + 0.0 + 0.25 + 0.0) / 5
+    # shut: relu(g + 1 + margin) = 0 and margin; open: |g| = 0.5 and 0.25; unlabelled: 0
+    expected = (0.0 + GATE_MARGIN + 0.5 + 0.25 + 0.0) / 5
     assert gate_hinge(logits, labels).item() == pytest.approx(expected, abs=1e-7)
     assert gate_hinge(logits, torch.zeros(5)).item() == 0.0
 
