@@ -29,8 +29,18 @@ class EpochSampler(Sampler[tuple[int, int]]):
     window's noise can depend on the epoch too. Lightning calls :meth:`set_epoch`; under DDP it
     wraps this sampler and gives each rank its share."""
 
-    def __init__(self, size: int, num_samples: int | None, seed: int, shuffle: bool) -> None:
+    def __init__(
+        self,
+        size: int,
+        num_samples: int | None,
+        seed: int,
+        shuffle: bool,
+        events: list[int] | None = None,
+        event_share: float = 0.0,
+    ) -> None:
         self.size, self.seed, self.shuffle = size, seed, shuffle
+        # a share of the draws replaced by windows of ``events``, also from (seed, epoch)
+        self.events, self.event_share = list(events or []), float(event_share)
         self.num_samples = size if num_samples is None else int(num_samples)
         self.epoch = 0
         # (epoch, samples) a run resumed mid-epoch leaves out of that epoch's next pass
@@ -50,6 +60,12 @@ class EpochSampler(Sampler[tuple[int, int]]):
             reps = -(-self.num_samples // self.size)
             perms = torch.cat([torch.randperm(self.size, generator=g) for _ in range(reps)])
             order = perms[: self.num_samples].tolist()
+            if self.events and self.event_share > 0:
+                swap = (torch.rand(len(order), generator=g) < self.event_share).tolist()
+                pick = torch.randint(len(self.events), (len(order),), generator=g).tolist()
+                order = [
+                    self.events[p] if w else o for o, w, p in zip(order, swap, pick, strict=True)
+                ]
         skip = 0
         if self.skip_next is not None and self.skip_next[0] == self.epoch:
             skip = self.skip_next[1]
@@ -214,6 +230,10 @@ class TrajectoryDataModule(L.LightningDataModule):
             rest exactly as the truth holds it, what a model's rest gate
             (``model.rest_gate``) learns to close on; every other window is noised as without
             it.
+        event_share: the share of training draws (0-1) replaced by windows that hold a wall
+            event (``WindowDataset.event_windows``: a lid removed, a drum started, stopped or
+            reversed), a few per trajectory: a bed's release from rest, which a rest gate must
+            learn to open on.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -242,6 +262,7 @@ class TrajectoryDataModule(L.LightningDataModule):
         mask_beyond_reach: bool = False,
         rest_weight: float = 1.0,
         clean_share: float = 0.0,
+        event_share: float = 0.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         trajectories: dict | None = None,
@@ -270,6 +291,9 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.clean_share = finite_number("data.clean_share", clean_share, minimum=0.0)
         if self.clean_share > 1:
             raise InputError(f"data.clean_share: expected a share from 0 to 1, got {clean_share!r}")
+        self.event_share = finite_number("data.event_share", event_share, minimum=0.0)
+        if self.event_share > 1:
+            raise InputError(f"data.event_share: expected a share from 0 to 1, got {event_share!r}")
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
@@ -360,7 +384,10 @@ class TrajectoryDataModule(L.LightningDataModule):
             rest_weight,
             clean_share,
         )
-        sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
+        events = dataset.event_windows() if shuffle and self.event_share > 0 else None
+        sampler = EpochSampler(
+            len(dataset), num_samples, self.seed, shuffle, events, self.event_share
+        )
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,
             batch_size=self.batch_size,

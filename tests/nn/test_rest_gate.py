@@ -14,12 +14,24 @@ from granular_pyg.errors import InputError
 from granular_pyg.geometry import horizontal_frame
 from granular_pyg.io import read_trajectory
 from granular_pyg.nn import Processor
-from granular_pyg.nn.rest_gate import GATE_GAIN, GATE_MARGIN, gate_hinge, gate_labels, gated
+from granular_pyg.nn.rest_gate import (
+    GATE_GAIN,
+    GATE_MARGIN,
+    START_WEIGHT,
+    gate_hinge,
+    gate_labels,
+    gated,
+)
 from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.scenes.redescribe import turned_scene
 from granular_pyg.simulator import LearnedSimulator, ParticleProps
-from granular_pyg.training.data_module import REST_SPEED, TrajectoryDataModule, _Collate
+from granular_pyg.training.data_module import (
+    REST_SPEED,
+    EpochSampler,
+    TrajectoryDataModule,
+    _Collate,
+)
 from granular_pyg.training.objectives import OneStep
 from tests.test_symmetries import _sim, _window
 
@@ -140,18 +152,20 @@ def test_clean_share_leaves_a_share_of_windows_without_noise():
 def test_gate_labels_tiny_cases():
     rest = torch.tensor([True, True, False, True, False])
     step = torch.tensor([[0, 0, 1e-6], [0, 2e-5, 0], [0, 0, 0], [float("nan")] * 3, [3e-5, 0, 0]])
-    # at rest in history and target: shut; target moving: open; lost (NaN) or only slowing: 0
+    # at rest in history and target: shut; starting to move: open, weighted; moving: open;
+    # lost (NaN) or only slowing: 0
     clean = gate_labels(rest, step.double(), 1e-5, clean=True)
-    assert clean.tolist() == [-1.0, 1.0, 0.0, 0.0, 1.0]
+    assert clean.tolist() == [-1.0, START_WEIGHT, 0.0, 0.0, 1.0]
     # noised inputs are not at rest: nobody is shut
-    assert gate_labels(rest, step.double(), 1e-5, clean=False).tolist() == [0, 1, 0, 0, 1]
+    noisy = gate_labels(rest, step.double(), 1e-5, clean=False)
+    assert noisy.tolist() == [0, START_WEIGHT, 0, 0, 1]
 
 
 def test_gate_hinge_tiny_cases():
     logits = torch.tensor([[-2.0], [-1.0], [0.5], [-0.25], [3.0]])
-    labels = torch.tensor([-1.0, -1.0, 1.0, 1.0, 0.0])
-    # shut: relu(g + 1 + margin) = 0 and margin; open: |g| = 0.5 and 0.25; unlabelled: 0
-    expected = (0.0 + GATE_MARGIN + 0.5 + 0.25 + 0.0) / 5
+    labels = torch.tensor([-1.0, -1.0, 1.0, 3.0, 0.0])
+    # shut: relu(g + 1 + margin) = 0 and margin; open: |g| = 0.5 and 3 x 0.25; unlabelled: 0
+    expected = (0.0 + GATE_MARGIN + 0.5 + 0.75 + 0.0) / 5
     assert gate_hinge(logits, labels).item() == pytest.approx(expected, abs=1e-7)
     assert gate_hinge(logits, torch.zeros(5)).item() == 0.0
 
@@ -198,3 +212,21 @@ def test_a_rest_gate_without_clean_windows_is_refused():
     data = TrajectoryDataModule(sample="hopper", noise_std=1e-4, clean_share=0.0)
     with pytest.raises(InputError, match=r"data\.clean_share"):
         data.attach(_sim("equivariant", "both", rest_gate=True))
+
+
+def test_event_windows_hold_a_wall_event_and_event_share_draws_them():
+    data = WindowDataset(sample_files("hopper")[:1], history=2, frames_per_step=1)
+    dt = data.frame_dt
+    events = data.event_windows()
+    assert events  # the bundled hopper's lid is removed at 0.02 s
+    for item in range(len(data)):
+        i, t = data.index[item]
+        time = float(data.trajs[i].times[t])
+        assert bool(data.walls[i].changing(time - dt, time + dt)) == (item in events)
+    plain = EpochSampler(len(data), 400, seed=3, shuffle=True)
+    share = EpochSampler(len(data), 400, seed=3, shuffle=True, events=events, event_share=0.5)
+    drawn = [w for _, w in share]
+    assert drawn == [w for _, w in share]  # the same draws for the same (seed, epoch)
+    from_events = sum(w in events for w in drawn) / len(drawn)
+    base = sum(w in events for _, w in plain) / 400
+    assert 0.4 < from_events - base * 0.5 < 0.6  # about half the draws swapped for events
