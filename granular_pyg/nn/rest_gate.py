@@ -16,8 +16,7 @@ trained model can learn the gate by fine-tuning.
 The gate learns from its own loss, not only through the acceleration it multiplies (whose
 gradient vanishes with the acceleration of a bed at rest): :func:`gate_labels` marks, from the
 clean truth, the particles to shut (at rest in their history and their target, in windows
-without noise) and those to open (their target moves; heavily where a particle at rest starts
-to move); :func:`gate_hinge` pushes ``g`` below
+without noise) and those to open (their target moves); :func:`gate_hinge` pushes ``g`` below
 ``-1 - GATE_MARGIN`` for the first and to 0 (gate 1) for the second. The acceleration's loss
 does not reach the gate (the simulator detaches it): in windows with noise a particle at rest
 in the truth must be pushed back, and that pull held the gate open.
@@ -33,7 +32,6 @@ from granular_pyg.nn.mlp import MLP
 __all__ = [
     "GATE_GAIN",
     "GATE_MARGIN",
-    "START_WEIGHT",
     "RestGate",
     "gate_hinge",
     "gate_labels",
@@ -74,18 +72,10 @@ def gated(acceleration: Tensor, logits: Tensor) -> Tensor:
     return acceleration * torch.relu(1.0 + logits.to(acceleration.dtype))
 
 
-#: Weight of an open label on a particle that starts to move (at rest in its history, its
-#: target moving): a bed's release (a lid removed, a drum started, the support flowing away)
-#: is a handful of windows per trajectory against thousands at rest, and a gate that learns
-#: only "at rest stays at rest" never lets a discharge start.
-START_WEIGHT = 30.0
-
-
 def gate_labels(
     rest_history: Tensor, target_step: Tensor, step_at_rest: float, clean: bool
 ) -> Tensor:
-    """``[N]`` signed weights for :func:`gate_hinge`: -1 shut, +1 open (:data:`START_WEIGHT`
-    where the particle starts to move), 0 neither.
+    """``[N]`` labels for :func:`gate_hinge`: -1 shut, +1 open, 0 neither.
 
     Args:
         rest_history: ``[N]`` bool, the particle is at rest at every step of its clean history.
@@ -97,9 +87,7 @@ def gate_labels(
     """
     step = torch.linalg.vector_norm(target_step, dim=-1)
     labels = torch.zeros(step.shape, dtype=target_step.dtype)
-    moving = step >= step_at_rest
-    labels[moving] = 1.0
-    labels[moving & rest_history] = START_WEIGHT
+    labels[step >= step_at_rest] = 1.0
     if clean:
         labels[rest_history & (step < step_at_rest)] = -1.0
     return labels

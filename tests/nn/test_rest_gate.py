@@ -17,7 +17,6 @@ from granular_pyg.nn import Processor
 from granular_pyg.nn.rest_gate import (
     GATE_GAIN,
     GATE_MARGIN,
-    START_WEIGHT,
     gate_hinge,
     gate_labels,
     gated,
@@ -152,13 +151,12 @@ def test_clean_share_leaves_a_share_of_windows_without_noise():
 def test_gate_labels_tiny_cases():
     rest = torch.tensor([True, True, False, True, False])
     step = torch.tensor([[0, 0, 1e-6], [0, 2e-5, 0], [0, 0, 0], [float("nan")] * 3, [3e-5, 0, 0]])
-    # at rest in history and target: shut; starting to move: open, weighted; moving: open;
-    # lost (NaN) or only slowing: 0
+    # at rest in history and target: shut; target moving: open; lost (NaN) or only slowing: 0
     clean = gate_labels(rest, step.double(), 1e-5, clean=True)
-    assert clean.tolist() == [-1.0, START_WEIGHT, 0.0, 0.0, 1.0]
+    assert clean.tolist() == [-1.0, 1.0, 0.0, 0.0, 1.0]
     # noised inputs are not at rest: nobody is shut
     noisy = gate_labels(rest, step.double(), 1e-5, clean=False)
-    assert noisy.tolist() == [0, START_WEIGHT, 0, 0, 1]
+    assert noisy.tolist() == [0, 1, 0, 0, 1]
 
 
 def test_gate_hinge_tiny_cases():
