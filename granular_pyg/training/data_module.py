@@ -152,14 +152,15 @@ class _Collate:
 
     def __call__(self, windows: list[Window]) -> Batch:
         graphs = []
+        dt, gate = float(self.sim.dt), self.sim.rest_gate
+        noised = self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
-            dt, gate = float(self.sim.dt), self.sim.rest_gate
             rest = at_rest(pos_seq, dt) if self.rest_weight != 1.0 or gate else None
-            noised = self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0
             clean = not noised or self._clean(w)
-            step = target - pos_seq[:, -1]
-            labels = gate_labels(rest, step, REST_SPEED * dt, clean) if gate else None
+            labels = None
+            if gate:
+                labels = gate_labels(rest, target - pos_seq[:, -1], REST_SPEED * dt, clean)
             if not clean:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
@@ -181,7 +182,7 @@ class _Collate:
                 graph.y = self.sim.target_acceleration(pos_seq, target, w.frame)
             if self.mask_beyond_reach:
                 reached = within_reach_of_events(
-                    w.walls, pos_seq[:, -1], w.time, float(self.sim.dt), self.sim.reach
+                    w.walls, pos_seq[:, -1], w.time, dt, self.sim.reach
                 )
                 graph.y[~reached] = float("nan")
             if labels is not None:  # the rest gate's own loss; none where the loss masks
