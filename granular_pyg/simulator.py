@@ -210,7 +210,8 @@ class LearnedSimulator(nn.Module):
         rest_gate: multiply each particle's acceleration by a learned gate ``relu(1 + g)``
             (:mod:`granular_pyg.nn.rest_gate`), exactly zero where ``g <= -1``: a bed at rest
             can stay at rest to the bit, as static friction holds it, instead of by an output
-            balanced to 0.01 m/s^2. Starts open (the model without it, exactly).
+            balanced to 0.01 m/s^2. Starts open (the model without it, exactly). It acts
+            outside training passes only; there the acceleration learns ungated.
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
@@ -658,7 +659,8 @@ class LearnedSimulator(nn.Module):
 
     def forward(self, graph: Data | Batch) -> torch.Tensor:
         """Normalised acceleration ``[num real particles, 3]`` (float32) of a graph or a batch
-        of graphs (with ``rest_gate``, the gated acceleration normalised)."""
+        of graphs (with ``rest_gate``, the gated acceleration normalised, except in a training
+        pass: :meth:`_gate_acts`)."""
         return self.forward_with_gate(graph)[0]
 
     def forward_with_gate(self, graph: Data | Batch) -> tuple[torch.Tensor, torch.Tensor | None]:
@@ -668,16 +670,24 @@ class LearnedSimulator(nn.Module):
         out = self._network_output(graph)
         if not self.rest_gate:
             return out, None
-        acc = (self._gated_acceleration(out) - self.acc_mean) / self.acc_std
+        if self._gate_acts():
+            acc = (self._gated_acceleration(out) - self.acc_mean) / self.acc_std
+        else:
+            acc = out[:, :NUM_DIMS]
         return acc, out[:, NUM_DIMS:]
+
+    def _gate_acts(self) -> bool:
+        """Whether the rest gate multiplies the acceleration: everywhere but in a training
+        pass (training mode with autograd on). There the acceleration is the network's own on
+        every particle, so it learns where the gate is shut too (a shut gate would zero its
+        gradient: the release of a bed at rest, which starts under a shut gate, was never
+        learned), and the gate learns from its own labels (``gate_hinge``) only."""
+        return not (self.training and torch.is_grad_enabled())
 
     def _gated_acceleration(self, out: torch.Tensor) -> torch.Tensor:
         """Physical acceleration ``[N, 3]`` (m/s^2) from the network's ``[N, 4]`` output with
-        ``rest_gate``: the normalised acceleration un-normalised, times the gate. The gate
-        learns from its own labels only (``gate_hinge``): the acceleration's loss does not
-        reach it, or noised inputs at rest, whose target pushes them back, would hold it open."""
-        logits = out[:, NUM_DIMS:].detach()
-        return gated(out[:, :NUM_DIMS] * self.acc_std + self.acc_mean, logits)
+        ``rest_gate``: the normalised acceleration un-normalised, times the gate."""
+        return gated(out[:, :NUM_DIMS] * self.acc_std + self.acc_mean, out[:, NUM_DIMS:])
 
     def _network_output(self, graph: Data | Batch) -> torch.Tensor:
         """The network's output rows of the real particles: ``[N, 3]`` normalised
@@ -711,10 +721,10 @@ class LearnedSimulator(nn.Module):
         sees the turned scene and its prediction is turned back)."""
         graph = self.build_graph(pos_seq, walls, time, neighbours, ids, props, frame)
         out = self._network_output(graph)
-        if self.rest_gate:  # physical directly: a closed gate gives exactly zero
+        if self.rest_gate and self._gate_acts():  # physical directly: a shut gate gives 0
             acc = self._gated_acceleration(out)
         else:
-            acc = out * self.acc_std + self.acc_mean
+            acc = out[:, :NUM_DIMS] * self.acc_std + self.acc_mean
         if frame is not None:
             acc = acc @ frame.to(acc)
         return acc

@@ -17,9 +17,12 @@ The gate learns from its own loss, not only through the acceleration it multipli
 gradient vanishes with the acceleration of a bed at rest): :func:`gate_labels` marks, from the
 clean truth, the particles to shut (at rest in their history and their target, in windows
 without noise) and those to open (their target moves); :func:`gate_hinge` pushes ``g`` below
-``-1 - GATE_MARGIN`` for the first and to 0 (gate 1) for the second. The acceleration's loss
-does not reach the gate (the simulator detaches it): in windows with noise a particle at rest
-in the truth must be pushed back, and that pull held the gate open.
+``-1 - GATE_MARGIN`` for the first and to 0 (gate 1) for the second. The gate acts outside
+training passes only (``LearnedSimulator._gate_acts``): in training the acceleration is the
+network's own on every particle, so the acceleration's loss neither reaches the gate (in
+windows with noise a particle at rest in the truth must be pushed back, and that pull held the
+gate open) nor stops where the gate is shut (a release, which starts under a shut gate, would
+never be learned).
 """
 
 from __future__ import annotations

@@ -109,6 +109,27 @@ def test_a_gated_equivariant_model_turns_and_mirrors_with_the_scene(normals):
             assert torch.allclose(moved, acc @ q.T, atol=1e-5 * float(acc.abs().max()), rtol=0)
 
 
+def test_a_shut_gate_acts_outside_training_passes_only():
+    """In a training pass the acceleration is the network's own (its loss reaches it where the
+    gate is shut: a release starts there); in evaluation, or without autograd, it is gated."""
+    sim = _sim("equivariant", "both", rest_gate=True)
+    torch.nn.init.constant_(_gate_layer(sim).bias, -3.0)  # shut everywhere
+    traj, seq, t, props = _flow(30)
+    walls = WallSet(traj.scene)
+    sim.train()
+    with torch.no_grad():
+        assert not sim.predict_acceleration(seq, walls, t, props=props).any()
+    acc = sim.predict_acceleration(seq, walls, t, props=props)
+    assert acc.abs().min() > 0  # the network's own acceleration, not gated
+    acc.square().sum().backward()
+    grads = [p.grad for n, p in sim.model.named_parameters() if n.startswith("decoder.")]
+    assert all(g is not None and g.abs().sum() > 0 for g in grads)
+    gate_grad = _gate_layer(sim).bias.grad  # the acceleration's loss does not reach the gate
+    assert gate_grad is None or not gate_grad.any()
+    sim.eval()
+    assert not sim.predict_acceleration(seq, walls, t, props=props).any()
+
+
 def test_fine_tuning_switches_the_gate_on_open():
     plain, with_gate = _sim("equivariant", "both"), _sim("equivariant", "both", rest_gate=True)
     torch.nn.init.normal_(with_gate.model.decoder[-1].weight)  # differs until loaded
