@@ -695,7 +695,15 @@ class LearnedSimulator(nn.Module):
         compiled = self._compiled_network is not None and torch.is_grad_enabled()
         network = self._compiled_network if compiled else self.model
         if self.equivariant:
-            inputs = (graph.x, graph.vec, graph.edge_index, graph.edge_attr, graph.edge_vec)
+            from_wall = graph.is_wall[graph.edge_index[0]]
+            inputs = (
+                graph.x,
+                graph.vec,
+                graph.edge_index,
+                graph.edge_attr,
+                graph.edge_vec,
+                from_wall,
+            )
         else:
             inputs = (graph.x, graph.edge_index, graph.edge_attr)
         if self.network_dtype is None:

@@ -44,7 +44,7 @@ def _sim(
 ):
     torch.manual_seed(3)
     proc = (
-        HorizontalEquivariantProcessor(latent=24, num_steps=2, channels=6)
+        HorizontalEquivariantProcessor(latent=24, num_steps=2, channels=6, wall_sum=True)
         if processor == "equivariant"
         else Processor(latent=24, num_steps=2, aggr="mean")
     )

@@ -33,14 +33,22 @@ __all__ = [
     "merge_cards",
     "with_initial_model",
     "with_open_gate",
+    "with_wall_sum",
 ]
 
 #: Data settings a fine-tuning run takes over from the initial model's training run.
 INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
 #: Model keys a fine-tuning run may change: how the graph is searched, how a step sees the
 #: walls (an older model can learn to see a lid removed or a drum started during the step),
-#: and the rest gate (it starts open: the initial model exactly).
-HONOURED_MODEL_KEYS = ("graph_backend", "max_num_neighbors", "walls_over_step", "rest_gate")
+#: the rest gate (it starts open: the initial model exactly) and the equivariant processor's
+#: wall sum (its weights start at zero: the initial model exactly).
+HONOURED_MODEL_KEYS = (
+    "graph_backend",
+    "max_num_neighbors",
+    "walls_over_step",
+    "rest_gate",
+    "processor.wall_sum",
+)
 
 
 def _read(init: str) -> dict:
@@ -160,6 +168,13 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
             ckpt["state_dict"] = with_open_gate(
                 ckpt["state_dict"], int(cfg.model.latent), int(cfg.model.mlp_layers)
             )
+        if cfg.model.processor.get("wall_sum"):
+            if not str(cfg.model.processor.get("_target_", "")).endswith("EquivariantProcessor"):
+                raise InputError(
+                    f"model.processor.wall_sum: only the equivariant processor has it; init="
+                    f"{cfg.init} has {cfg.model.processor.get('_target_')}; drop the override"
+                )
+            ckpt["state_dict"] = with_wall_sum(ckpt["state_dict"], int(cfg.model.latent))
     return cfg, ckpt
 
 
@@ -175,6 +190,24 @@ def with_open_gate(state_dict: dict, latent: int, mlp_layers: int) -> dict:
     dtype = state_dict["sim.acc_std"].dtype if "sim.acc_std" in state_dict else torch.float32
     fresh = {f"sim.model.gate.{k}": v.to(dtype) for k, v in gate.state_dict().items()}
     return {**state_dict, **fresh}
+
+
+def with_wall_sum(state_dict: dict, latent: int) -> dict:
+    """``state_dict`` (``sim.*`` keys, an equivariant model) with each processor step's node
+    MLP widened by ``latent`` zero input columns for the wall sum
+    (:class:`~granular_pyg.nn.HorizontalEquivariantProcessor`'s ``wall_sum``, the last input
+    block): the model without it, exactly. A state dict that has them is returned as is."""
+    out = dict(state_dict)
+    for key, weight in state_dict.items():
+        if not (
+            key.startswith("sim.model.processor.layers.") and key.endswith("node_mlp.0.weight")
+        ):
+            continue
+        layer = key[: -len("node_mlp.0.weight")]
+        channels = state_dict[layer + "channel_mix.weight"].shape[0]
+        if weight.shape[1] == 2 * latent + channels:  # without the wall sum (3L + C with it)
+            out[key] = torch.cat([weight, weight.new_zeros((weight.shape[0], latent))], dim=1)
+    return out
 
 
 def load_initial_weights(sim: LearnedSimulator, ckpt: dict) -> None:

@@ -66,21 +66,37 @@ class HorizontalEquivariantLayer(nn.Module):
         channels: vector channels ``C``.
         aggr: ``"mean"`` or ``"sum"``.
         mlp_layers: hidden layers of each MLP.
+        wall_sum: the node update also gets the sum of the edge scalars from wall nodes.
     """
 
-    def __init__(self, latent: int, channels: int, aggr: str = "mean", mlp_layers: int = 2) -> None:
+    def __init__(
+        self,
+        latent: int,
+        channels: int,
+        aggr: str = "mean",
+        mlp_layers: int = 2,
+        wall_sum: bool = False,
+    ) -> None:
         super().__init__()
         if aggr not in AGGREGATIONS:
             raise InputError(f"aggr: expected one of {AGGREGATIONS}, got {aggr!r}")
         self.latent, self.channels, self.aggr = latent, channels, aggr
+        self.wall_sum = wall_sum
+        node_in = (3 if wall_sum else 2) * latent + channels
         self.edge_mlp = MLP(3 * latent + 2 * channels, latent, latent, mlp_layers, layer_norm=True)
-        self.node_mlp = MLP(2 * latent + channels, latent, latent, mlp_layers, layer_norm=True)
+        self.node_mlp = MLP(node_in, latent, latent, mlp_layers, layer_norm=True)
         self.vector_gates = nn.Linear(latent, 2 * channels)
         self.channel_mix = nn.Linear(channels, channels, bias=False)
         self.update_gate = nn.Linear(latent, channels)
 
     def forward(
-        self, s: Tensor, vec: Tensor, edge_index: Tensor, e: Tensor, d: Tensor
+        self,
+        s: Tensor,
+        vec: Tensor,
+        edge_index: Tensor,
+        e: Tensor,
+        d: Tensor,
+        from_wall: Tensor | None = None,
     ) -> tuple[Tensor, Tensor, Tensor]:
         """One step.
 
@@ -90,6 +106,8 @@ class HorizontalEquivariantLayer(nn.Module):
             edge_index: ``[2, E]`` (source ``j``, target ``i``).
             e: ``[E, L]`` edge scalars.
             d: ``[E, 2]`` horizontal displacement ``x_i - x_j`` over the cut-off.
+            from_wall: ``[E]`` bool, the edge comes from a wall node (needed with
+                ``wall_sum``).
 
         Returns:
             ``(s' [N, L], vec' [N, C, 2], e' [E, L])``.
@@ -106,7 +124,11 @@ class HorizontalEquivariantLayer(nn.Module):
         agg_vec = scatter(msg, dst, dim=0, dim_size=num, reduce=self.aggr)
         agg_s = scatter(e, dst, dim=0, dim_size=num, reduce=self.aggr)
         norms = (vec + agg_vec).square().sum(dim=-1)  # [N, C], invariant
-        s = s + self.node_mlp(torch.cat([s, agg_s, norms], dim=1))
+        node_in = [s, agg_s, norms]
+        if self.wall_sum:  # a wall's support is not averaged away among the particles'
+            walls = e * from_wall.unsqueeze(1).to(e.dtype)
+            node_in.append(scatter(walls, dst, dim=0, dim_size=num, reduce="sum"))
+        s = s + self.node_mlp(torch.cat(node_in, dim=1))
         mixed = self.channel_mix(agg_vec.transpose(1, 2)).transpose(1, 2)  # [N, C, 2]
         vec = vec + mixed * torch.sigmoid(self.update_gate(s)).unsqueeze(-1)
         return s, vec, e
@@ -124,6 +146,12 @@ class HorizontalEquivariantProcessor(nn.Module):
         channels: horizontal vector channels ``C``.
         aggr: ``"mean"`` or ``"sum"``.
         mlp_layers: hidden layers of each MLP.
+        wall_sum: each step's node update also gets the **sum** of the messages from wall
+            nodes, beside the aggregate over all edges. Under ``mean`` a lid under a bed is one
+            or two of some twenty messages, and its removal moved a trained model's
+            acceleration of the bottom layer by 0.01 m/s^2 (LIGGGHTS: 5-9 m/s^2); summed, the
+            support of each surface a particle touches counts whole. With ``wall_nodes:
+            patch`` (a node per surface) the sum does not depend on the triangulation.
     """
 
     def __init__(
@@ -133,26 +161,39 @@ class HorizontalEquivariantProcessor(nn.Module):
         channels: int = 16,
         aggr: str = "mean",
         mlp_layers: int = 2,
+        wall_sum: bool = False,
     ) -> None:
         super().__init__()
         self.latent = _check_int("latent", latent, 1)
         self.num_steps = _check_int("num_steps", num_steps, 1)
         self.channels = _check_int("channels", channels, 1)
+        if not isinstance(wall_sum, bool):
+            raise InputError(f"wall_sum: expected true or false, got {wall_sum!r}")
+        self.wall_sum = wall_sum
         self.layers = nn.ModuleList(
-            HorizontalEquivariantLayer(self.latent, self.channels, aggr, mlp_layers)
+            HorizontalEquivariantLayer(self.latent, self.channels, aggr, mlp_layers, wall_sum)
             for _ in range(self.num_steps)
         )
 
     def forward(
-        self, s: Tensor, vec: Tensor, edge_index: Tensor, e: Tensor, d: Tensor
+        self,
+        s: Tensor,
+        vec: Tensor,
+        edge_index: Tensor,
+        e: Tensor,
+        d: Tensor,
+        from_wall: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
-        """Run every step; returns the node scalars ``[N, L]`` and vectors ``[N, C, 2]``."""
+        """Run every step; returns the node scalars ``[N, L]`` and vectors ``[N, C, 2]``
+        (``from_wall [E]``: the edges from wall nodes, needed with ``wall_sum``)."""
+        if self.wall_sum and from_wall is None:
+            raise InputError("wall_sum: the processor needs from_wall, the edges from walls")
         for layer in self.layers:
-            s, vec, e = layer(s, vec, edge_index, e, d)
+            s, vec, e = layer(s, vec, edge_index, e, d, from_wall)
         return s, vec
 
     def extra_repr(self) -> str:
-        return f"num_steps={self.num_steps}, channels={self.channels}"
+        return f"num_steps={self.num_steps}, channels={self.channels}, wall_sum={self.wall_sum}"
 
 
 class HorizontalEquivariantNetwork(nn.Module):
@@ -189,7 +230,13 @@ class HorizontalEquivariantNetwork(nn.Module):
         self.gate = RestGate(latent, mlp_layers) if rest_gate else None
 
     def forward(
-        self, x: Tensor, vec: Tensor, edge_index: Tensor, edge_attr: Tensor, edge_vec: Tensor
+        self,
+        x: Tensor,
+        vec: Tensor,
+        edge_index: Tensor,
+        edge_attr: Tensor,
+        edge_vec: Tensor,
+        from_wall: Tensor | None = None,
     ) -> Tensor:
         """Predict the normalised acceleration of every node.
 
@@ -199,13 +246,15 @@ class HorizontalEquivariantNetwork(nn.Module):
             edge_index: ``[2, E]`` int64 (source, target).
             edge_attr: ``[E, edge_in]`` edge scalars.
             edge_vec: ``[E, 2]`` horizontal edge displacement over the cut-off.
+            from_wall: ``[E]`` bool, the edges from wall nodes (the processor's ``wall_sum``).
 
         Returns:
             ``[N, 3]``: ``(a_x, a_y, a_z)``; ``[N, 4]`` with the gate logit last.
         """
         s = self.node_encoder(x)
         v = self.vec_encoder(vec.transpose(1, 2)).transpose(1, 2)
-        s, v = self.processor(s, v, edge_index, self.edge_encoder(edge_attr), edge_vec.to(s.dtype))
+        e = self.edge_encoder(edge_attr)
+        s, v = self.processor(s, v, edge_index, e, edge_vec.to(s.dtype), from_wall)
         out = self.decoder(s)
         horizontal = (out[:, 1:].unsqueeze(-1) * v.to(out.dtype)).sum(dim=1)  # [N, 2]
         columns = [horizontal, out[:, :1]]
