@@ -211,9 +211,11 @@ def test_wall_nodes_carry_the_rotating_drum_velocity():
 
 
 def test_a_wall_removed_during_the_step_is_gone_from_its_graph_with_walls_over_step():
-    """The sample's lid goes at 0.02 s. A step from 0.0175 s to 0.02 s must not show it (the bed
-    starts to fall during it), while a step that ends before 0.02 s still does; the option off
-    (older checkpoints) shows the lid whenever it is there at the step's start."""
+    """The sample's lid goes at 0.02 s: LIGGGHTS's bed is still at rest in the frame at 0.02 s
+    and falls from the next. A step from 0.018 s to 0.0205 s must not show the lid (the bed
+    starts to fall during it); a step that ends at 0.02 s or before still does (the lid held
+    the bed all through it); the option off (older checkpoints) shows the lid whenever it is
+    there at the step's start."""
     traj = read_trajectory(sample_files("hopper")[0])
     assert [w.removal_time for w in traj.scene.walls] == [None, 0.02]
     seq = torch.from_numpy(traj.positions[0:6]).permute(1, 0, 2).contiguous()
@@ -225,8 +227,11 @@ def test_a_wall_removed_during_the_step_is_gone_from_its_graph_with_walls_over_s
 
     end, start = _model(walls_over_step=True), _model()
     assert float(end.dt) == 0.0025
-    assert lid_nodes(start, 0.0175) > 0 and lid_nodes(end, 0.0175) == 0  # gone by 0.02 s
-    assert lid_nodes(end, 0.015) == lid_nodes(start, 0.015) > 0  # the step ends at 0.0175 s
+    bottom = traj.positions[0, :, 2] < traj.positions[0, :, 2].min() + 0.004
+    sink = traj.positions[0, bottom, 2] - traj.positions[[8, 9]][:, bottom, 2]  # 0.02, 0.0225 s
+    assert abs(sink[0]).max() < 1e-7 and sink[1].mean() > 5e-5  # at rest at 0.02 s, then falling
+    assert lid_nodes(start, 0.018) > 0 and lid_nodes(end, 0.018) == 0  # gone by 0.0205 s
+    assert lid_nodes(end, 0.0175) == lid_nodes(start, 0.0175) > 0  # the step ends at 0.02 s
     assert lid_nodes(start, 0.02) == lid_nodes(end, 0.02) == 0  # already gone
     with pytest.raises(InputError, match="walls_over_step"):
         _model(walls_over_step="yes")

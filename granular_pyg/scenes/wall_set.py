@@ -140,11 +140,14 @@ class WallSet:
             time: recorded time (s) that sets each wall's pose.
             step_end: None: the walls present at ``time``, with their velocities at ``time``.
                 A later time (s): the walls as a learned step from ``time`` to ``step_end``
-                sees them, those present at ``step_end`` with their mean velocities over the
-                step (a lid removed, a drum started or stopped during the step shows).
+                sees them, those present over the whole step (to 1 ns: a wall removed at
+                ``step_end`` counts) with their mean velocities over the step (a lid removed,
+                a drum started or stopped during the step shows).
         """
         over_step = step_end is not None and step_end > time
-        present_time = step_end if over_step else time
+        # Over a step: the walls there for all of it (one removed at its very end held the bed
+        # for the whole step: the truth has not moved yet); at ``time`` otherwise.
+        present_time = step_end - 1e-9 if over_step else time
         dtype = points.dtype
         parts = []
         for wall, index, normals, offset in zip(
