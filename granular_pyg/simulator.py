@@ -201,7 +201,7 @@ class LearnedSimulator(nn.Module):
             ``"patch"`` (per nearby surface patch, independent of the triangulation; see
             :class:`~granular_pyg.transforms.AddWallNodes`).
         walls_over_step: a step's graph holds the walls as they are over the step, from
-            ``time`` to ``time + dt``: those present at its end, with their mean velocities over
+            ``time`` to ``time + dt``: those there all through it, with their mean velocities over
             it (poses at ``time``). A lid removed or a drum started during the step shows in
             the inputs, which tell a bed that stays at rest from one that starts to move. With
             False (older models), the walls at ``time``: the two look alike, and the model
