@@ -34,7 +34,7 @@ from granular_pyg.simulator import ParticleProps
 BOTTOM_LAYER_M = 0.004
 
 
-def _raw_weights(path: str) -> str:
+def raw_weights(path: str) -> str:
     """A copy of training checkpoint ``path`` whose weights are its raw ones (not the EMA)."""
     _, ckpt = read_checkpoint(path, "ckpt")
     if "raw_weights" not in ckpt:
@@ -52,7 +52,7 @@ def main() -> None:
     parser.add_argument("--raw", action="store_true", help="the raw weights, not the EMA")
     args = parser.parse_args()
     torch.set_num_threads(1)
-    sim, cfg = load_simulator(_raw_weights(args.ckpt) if args.raw else args.ckpt)
+    sim, cfg = load_simulator(raw_weights(args.ckpt) if args.raw else args.ckpt)
     traj = read_trajectory(args.trajectory)
     walls = WallSet(traj.scene)
     removals = [w.removal_time for w in walls.walls if w.removal_time is not None]
