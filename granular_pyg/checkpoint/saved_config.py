@@ -54,6 +54,11 @@ def migrate_config(config: dict) -> dict:
     for (section, key), off in _ADDED.items():
         if section in cfg:
             cfg[section].setdefault(key, copy.deepcopy(off))
+    processor = cfg.get("model", {}).get("processor")
+    if isinstance(processor, dict) and str(processor.get("_target_", "")).endswith(
+        "EquivariantProcessor"
+    ):
+        processor.setdefault("wall_sum", False)  # each step's mean only, before the wall sum
     for section, key in (("data", "push_forward_steps"), ("data", "unroll_steps")):
         cfg.get(section, {}).pop(key, None)
     for (section, key), off in _REMOVED.items():

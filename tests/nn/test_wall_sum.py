@@ -8,6 +8,7 @@ from __future__ import annotations
 import torch
 
 from granular_pyg.checkpoint.fine_tune import with_wall_sum
+from granular_pyg.checkpoint.saved_config import migrate_config
 from granular_pyg.nn import HorizontalEquivariantProcessor
 from granular_pyg.scenes import WallSet
 from granular_pyg.simulator import LearnedSimulator, ParticleProps
@@ -52,3 +53,13 @@ def test_switching_the_wall_sum_on_keeps_the_trained_model_exactly():
         c = summed.predict_acceleration(seq, walls, t, props=props)
     changed = (c - a).abs().amax(dim=1) > 0
     assert changed.any() and not changed.all()
+
+
+def test_an_older_equivariant_checkpoint_reads_as_without_the_wall_sum():
+    target = "granular_pyg.nn.HorizontalEquivariantProcessor"
+    old = {"model": {"processor": {"_target_": target, "latent": 32}}}
+    assert migrate_config(old)["model"]["processor"]["wall_sum"] is False
+    new = {"model": {"processor": {"_target_": target, "wall_sum": True}}}
+    assert migrate_config(new)["model"]["processor"]["wall_sum"] is True
+    bgnn = {"model": {"processor": {"_target_": "granular_pyg.nn.Processor"}}}
+    assert "wall_sum" not in migrate_config(bgnn)["model"]["processor"]
