@@ -695,15 +695,11 @@ class LearnedSimulator(nn.Module):
         compiled = self._compiled_network is not None and torch.is_grad_enabled()
         network = self._compiled_network if compiled else self.model
         if self.equivariant:
-            from_wall = graph.is_wall[graph.edge_index[0]]
-            inputs = (
-                graph.x,
-                graph.vec,
-                graph.edge_index,
-                graph.edge_attr,
-                graph.edge_vec,
-                from_wall,
-            )
+            # the edges from wall nodes, only for a processor that sums their messages
+            wall_sum = self.model.processor.wall_sum
+            from_wall = graph.is_wall[graph.edge_index[0]] if wall_sum else None
+            inputs = (graph.x, graph.vec, graph.edge_index, graph.edge_attr, graph.edge_vec)
+            inputs += (from_wall,)
         else:
             inputs = (graph.x, graph.edge_index, graph.edge_attr)
         if self.network_dtype is None:

@@ -25,7 +25,7 @@ import torch
 
 from granular_pyg.checkpoint.files import read_checkpoint
 from granular_pyg.checkpoint.fine_tune import with_wall_sum
-from granular_pyg.checkpoint.model import build_model
+from granular_pyg.checkpoint.model import build_model, load_weights
 from granular_pyg.data.windows import WindowDataset
 from granular_pyg.inference import load_simulator
 from granular_pyg.nn.rest_gate import gate_hinge
@@ -85,7 +85,7 @@ def main() -> None:
         state = read_checkpoint(path, "ckpt")[1]["state_dict"]
         state = with_wall_sum(state, int(model["latent"]))
         sim = build_model(model | {"dt": float(sim.dt)}, args.ckpt, state)
-        sim.load_state_dict({k[4:]: v for k, v in state.items() if k.startswith("sim.")})
+        load_weights(sim, {"state_dict": state}, args.ckpt)
     k = int(cfg["data"]["frames_per_step"])
     release, rest = _windows(sim, TRAIN, k)
     others = round(len(release) * (1 - args.share) / args.share)
