@@ -63,9 +63,9 @@ from granular_pyg.nn import (
     HorizontalEquivariantProcessor,
     Processor,
 )
-from granular_pyg.nn.rest_gate import gated
 from granular_pyg.progress import show_progress
 from granular_pyg.scenes import Materials, WallSet
+from granular_pyg.sleep import at_rest, spread
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 
 __all__ = ["MATERIAL_FEATURES", "LearnedSimulator", "ParticleProps", "WallGuard"]
@@ -207,11 +207,10 @@ class LearnedSimulator(nn.Module):
             False (older models), the walls at ``time``: the two look alike, and the model
             learns their average, a bed that sinks through a closed lid or creeps in a drum at
             rest.
-        rest_gate: multiply each particle's acceleration by a learned gate ``relu(1 + g)``
-            (:mod:`granular_pyg.nn.rest_gate`), exactly zero where ``g <= -1``: a bed at rest
-            can stay at rest to the bit, as static friction holds it, instead of by an output
-            balanced to 0.01 m/s^2. Starts open (the model without it, exactly). It acts
-            outside training passes only; there the acceleration learns ungated.
+        sleep: particles that sleep (:mod:`granular_pyg.sleep`) get exactly zero
+            acceleration outside training passes: those at rest in their history and beyond
+            the model's reach of anything that moves or changes. A bed at rest stays at rest
+            to the bit; a flowing one is unchanged. No weights: any model can switch it on.
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
@@ -236,7 +235,7 @@ class LearnedSimulator(nn.Module):
         contact_feature: bool = False,
         wall_nodes: str = "triangle",
         walls_over_step: bool = False,
-        rest_gate: bool = False,
+        sleep: bool = False,
     ) -> None:
         super().__init__()
         if history < 1:
@@ -268,9 +267,9 @@ class LearnedSimulator(nn.Module):
                 f"model.walls_over_step: expected true or false, got {walls_over_step!r}"
             )
         self.walls_over_step = walls_over_step
-        if not isinstance(rest_gate, bool):
-            raise InputError(f"model.rest_gate: expected true or false, got {rest_gate!r}")
-        self.rest_gate = rest_gate
+        if not isinstance(sleep, bool):
+            raise InputError(f"model.sleep: expected true or false, got {sleep!r}")
+        self.sleep = sleep
         self.radius_feature, self.material_features = radius_feature, names
         self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
@@ -288,7 +287,7 @@ class LearnedSimulator(nn.Module):
             node_in = h + h * (h + 1) // 2 + 2 + NUM_TYPES + extra_in
             edge_in = 4 + int(self.contact_feature)
             self.model = HorizontalEquivariantNetwork(
-                node_in, h + 1, edge_in, processor, mlp_layers, rest_gate
+                node_in, h + 1, edge_in, processor, mlp_layers
             )
         else:
             node_in = NUM_DIMS * self.history + NUM_NORMAL_FEATURES + NUM_TYPES + extra_in
@@ -300,7 +299,6 @@ class LearnedSimulator(nn.Module):
                 processor,
                 latent=latent,
                 mlp_layers=mlp_layers,
-                rest_gate=rest_gate,
             )
         self.register_buffer("dt", torch.tensor(float(dt), dtype=torch.float64))
         self.network_dtype: torch.dtype | None = None  # None: float32 (see set_network_precision)
@@ -659,39 +657,44 @@ class LearnedSimulator(nn.Module):
 
     def forward(self, graph: Data | Batch) -> torch.Tensor:
         """Normalised acceleration ``[num real particles, 3]`` (float32) of a graph or a batch
-        of graphs (with ``rest_gate``, the gated acceleration normalised, except in a training
-        pass: :meth:`_gate_acts`)."""
-        return self.forward_with_gate(graph)[0]
+        of graphs (every particle's: sleeping acts in :meth:`predict_acceleration`)."""
+        return self._network_output(graph)
 
-    def forward_with_gate(self, graph: Data | Batch) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """:meth:`forward`'s normalised acceleration ``[N, 3]`` and, with ``rest_gate``, the
-        gate logits ``[N, 1]`` it was gated with (None without), from one network pass: what
-        the gate's own loss (:func:`~granular_pyg.nn.rest_gate.gate_hinge`) needs."""
-        out = self._network_output(graph)
-        if not self.rest_gate:
-            return out, None
-        if self._gate_acts():
-            acc = (self._gated_acceleration(out) - self.acc_mean) / self.acc_std
-        else:
-            acc = out[:, :NUM_DIMS]
-        return acc, out[:, NUM_DIMS:]
+    def awake(
+        self, pos_seq: torch.Tensor, graph: Data, walls: WallSet, time: float
+    ) -> torch.Tensor:
+        """``[N]`` bool: the particles of ``pos_seq [N, H + 1, 3]`` (m) that are awake
+        (:mod:`granular_pyg.sleep`) for the learned step from ``time`` (s) over ``graph``
+        (their graph): moved in their history, or within ``num_steps`` hops of one that did, or
+        within ``reach`` of a wall that moves or changes in the step."""
+        real = ~graph.is_wall
+        nodes = torch.zeros(real.shape[0], dtype=torch.bool, device=pos_seq.device)
+        nodes[real] = ~at_rest(pos_seq, float(self.dt))
+        hops = int(self.model.processor.num_steps)
+        awake = spread(nodes, graph.edge_index, graph.is_wall, hops)[real]
+        if not bool(awake.all()):
+            woken = self.woken_by_walls(pos_seq[:, -1], walls, time)
+            if woken is not None:
+                awake |= woken
+        return awake
 
-    def _gate_acts(self) -> bool:
-        """Whether the rest gate multiplies the acceleration: everywhere but in a training
-        pass (training mode with autograd on). There the acceleration is the network's own on
-        every particle, so it learns where the gate is shut too (a shut gate would zero its
-        gradient: the release of a bed at rest, which starts under a shut gate, was never
-        learned), and the gate learns from its own labels (``gate_hinge``) only."""
-        return not (self.training and torch.is_grad_enabled())
-
-    def _gated_acceleration(self, out: torch.Tensor) -> torch.Tensor:
-        """Physical acceleration ``[N, 3]`` (m/s^2) from the network's ``[N, 4]`` output with
-        ``rest_gate``: the normalised acceleration un-normalised, times the gate."""
-        return gated(out[:, :NUM_DIMS] * self.acc_std + self.acc_mean, out[:, NUM_DIMS:])
+    def woken_by_walls(
+        self, points: torch.Tensor, walls: WallSet, time: float
+    ) -> torch.Tensor | None:
+        """``[N]`` bool: the particles at ``points [N, 3]`` (m) within the model's ``reach``
+        of a wall that moves within the learned step from ``time`` (s), or that changes in it
+        (removed; its motion started, stopped or reversed), or None without such a wall. A wall
+        removed at the step's very end is still there for the step (:meth:`WallSet.contacts`)
+        and wakes nothing."""
+        end = time + float(self.dt) - 1e-6
+        changed = sorted(set(walls.changing(time, end)) | set(walls.moving(time, end)))
+        if not changed:
+            return None
+        return walls.near(points, self.reach, time, changed).to(points.device)
 
     def _network_output(self, graph: Data | Batch) -> torch.Tensor:
         """The network's output rows of the real particles: ``[N, 3]`` normalised
-        acceleration, ``[N, 4]`` with the gate logit last with ``rest_gate``."""
+        acceleration."""
         compiled = self._compiled_network is not None and torch.is_grad_enabled()
         network = self._compiled_network if compiled else self.model
         if self.equivariant:
@@ -725,10 +728,9 @@ class LearnedSimulator(nn.Module):
         sees the turned scene and its prediction is turned back)."""
         graph = self.build_graph(pos_seq, walls, time, neighbours, ids, props, frame)
         out = self._network_output(graph)
-        if self.rest_gate and self._gate_acts():  # physical directly: a shut gate gives 0
-            acc = self._gated_acceleration(out)
-        else:
-            acc = out[:, :NUM_DIMS] * self.acc_std + self.acc_mean
+        acc = out * self.acc_std + self.acc_mean
+        if self.sleep and not (self.training and torch.is_grad_enabled()):
+            acc = acc * self.awake(pos_seq, graph, walls, time)[:, None]
         if frame is not None:
             acc = acc @ frame.to(acc)
         return acc

@@ -51,7 +51,7 @@ def test_unknown_pretrained_name_lists_the_available_ones():
 
 
 def test_export_keeps_config_and_weights_only(tmp_path):
-    cfg = compose("train", ["model.latent=16", "data.root=data/somewhere"])
+    cfg = compose("train", ["model.latent=16", "data.root=data/somewhere", "model.sleep=false"])
     sim = instantiate(cfg.model)
     full = {
         "config": OmegaConf.to_container(cfg, resolve=True),
@@ -70,6 +70,14 @@ def test_export_keeps_config_and_weights_only(tmp_path):
     loaded, _ = load_simulator(out)
     for name, value in sim.state_dict().items():
         assert torch.equal(loaded.state_dict()[name], value)
+    # a shipped model re-exported with sleeping on keeps its weights and its record
+    again = export(out, "drum", "drum", sleep=True, out=tmp_path / "sleeping.ckpt")
+    slept = torch.load(again, weights_only=False)
+    assert slept["config"]["model"]["sleep"] is True
+    assert slept["pretrained"] == slim["pretrained"]
+    assert slept["config"]["data"] == slim["config"]["data"]
+    assert all(torch.equal(slept["state_dict"][k], v) for k, v in slim["state_dict"].items())
+    assert load_simulator(again)[0].sleep and not load_simulator(out)[0].sleep
 
 
 @pytest.mark.parametrize("name", sorted(SAMPLE))

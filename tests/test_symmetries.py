@@ -40,7 +40,7 @@ def _sim(
     normals: str,
     wall_nodes: str = "patch",
     dtype=torch.float64,
-    rest_gate: bool = False,
+    sleep: bool = False,
 ):
     torch.manual_seed(3)
     proc = (
@@ -57,7 +57,7 @@ def _sim(
         contact_feature=True,
         radius_feature=True,
         wall_nodes=wall_nodes,
-        rest_gate=rest_gate,
+        sleep=sleep,
     )
     sim.set_normalization([0.01, -0.02, -0.2], [0.1, 0.12, 0.3], [0.3, 0.1, -9.8], [5.0, 4.0, 8.0])
     return sim.to(dtype).eval()

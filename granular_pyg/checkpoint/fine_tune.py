@@ -23,7 +23,6 @@ from granular_pyg.config import flatten
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError
 from granular_pyg.io import read_trajectory
-from granular_pyg.nn.rest_gate import RestGate
 from granular_pyg.simulator import LearnedSimulator
 
 __all__ = [
@@ -32,7 +31,6 @@ __all__ = [
     "load_initial_weights",
     "merge_cards",
     "with_initial_model",
-    "with_open_gate",
     "with_wall_sum",
 ]
 
@@ -40,13 +38,13 @@ __all__ = [
 INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
 #: Model keys a fine-tuning run may change: how the graph is searched, how a step sees the
 #: walls (an older model can learn to see a lid removed or a drum started during the step),
-#: the rest gate (it starts open: the initial model exactly) and the equivariant processor's
-#: wall sum (its weights start at zero: the initial model exactly).
+#: sleeping (a rule without weights) and the equivariant processor's wall sum (its weights
+#: start at zero: the initial model exactly).
 HONOURED_MODEL_KEYS = (
     "graph_backend",
     "max_num_neighbors",
     "walls_over_step",
-    "rest_gate",
+    "sleep",
     "processor.wall_sum",
 )
 
@@ -164,10 +162,6 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
                 f"data's frame spacing {frame_dt:g} s; record frames every {dt:g} s / k"
             )
         cfg.data.frames_per_step = k
-        if cfg.model.get("rest_gate"):
-            ckpt["state_dict"] = with_open_gate(
-                ckpt["state_dict"], int(cfg.model.latent), int(cfg.model.mlp_layers)
-            )
         if cfg.model.processor.get("wall_sum"):
             if not str(cfg.model.processor.get("_target_", "")).endswith("EquivariantProcessor"):
                 raise InputError(
@@ -176,20 +170,6 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
                 )
             ckpt["state_dict"] = with_wall_sum(ckpt["state_dict"], int(cfg.model.latent))
     return cfg, ckpt
-
-
-def with_open_gate(state_dict: dict, latent: int, mlp_layers: int) -> dict:
-    """``state_dict`` (a training checkpoint's, ``sim.*`` keys) with a fresh, open rest gate
-    (:class:`~granular_pyg.nn.rest_gate.RestGate`, seeded; its output layer zero: the model
-    without it, exactly) where it has none, so that fine-tuning can switch the gate on."""
-    if any(k.startswith("sim.model.gate.") for k in state_dict):
-        return state_dict
-    with torch.random.fork_rng():
-        torch.manual_seed(0)
-        gate = RestGate(latent, mlp_layers)
-    dtype = state_dict["sim.acc_std"].dtype if "sim.acc_std" in state_dict else torch.float32
-    fresh = {f"sim.model.gate.{k}": v.to(dtype) for k, v in gate.state_dict().items()}
-    return {**state_dict, **fresh}
 
 
 def with_wall_sum(state_dict: dict, latent: int) -> dict:

@@ -21,6 +21,9 @@ _REMOVED = {
     ("model", "type_scale"): 1.0,
     ("model", "normal_scale"): 1.0,
     ("model", "overlap_feature"): False,
+    ("model", "rest_gate"): False,
+    ("data", "clean_share"): 0.0,
+    ("data", "event_share"): 0.0,
 }
 
 #: Options added later, with the value an older checkpoint's model had (off).
@@ -30,7 +33,7 @@ _ADDED = {
     ("model", "contact_feature"): False,
     ("model", "wall_nodes"): "triangle",  # the paper's wall nodes, before surface patches
     ("model", "walls_over_step"): False,  # the walls at a step's start
-    ("model", "rest_gate"): False,  # no gate on the acceleration
+    ("model", "sleep"): False,  # every particle's acceleration as the network gives it
     ("data", "augment"): False,  # windows in the recorded frame, before turns and mirrors
 }
 

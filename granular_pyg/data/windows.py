@@ -147,18 +147,6 @@ class WindowDataset(Dataset):
                 "use longer trajectories or a smaller frames_per_step"
             )
 
-    def event_windows(self) -> list[int]:
-        """Indices of the windows whose last history step or learned step holds a wall event
-        (a wall removed, a motion started, stopped or reversed): a bed's release, a few
-        windows per trajectory, which ``data.event_share`` draws more often."""
-        dt = self.frames_per_step * self.frame_dt
-        found = []
-        for item, (i, t) in enumerate(self.index):
-            time = float(self.trajs[i].times[t])
-            if self.walls[i].changing(time - dt, time + dt):
-                found.append(item)
-        return found
-
     def _frames(self, t: int) -> np.ndarray:
         first = t - self.history * self.frames_per_step
         last = t + (1 + self.extra_steps) * self.frames_per_step

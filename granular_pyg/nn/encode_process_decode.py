@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import torch
 from torch import Tensor, nn
 
 from granular_pyg.errors import InputError
 from granular_pyg.nn.mlp import MLP, _check_int
 from granular_pyg.nn.processor import Processor, _check_graph
-from granular_pyg.nn.rest_gate import RestGate
 
 __all__ = ["EncodeProcessDecode"]
 
@@ -31,8 +29,6 @@ class EncodeProcessDecode(nn.Module):
         processor: the processor; its ``latent`` must equal ``latent``.
         latent: latent width ``L``.
         mlp_layers: hidden layers of the encoder and decoder MLPs.
-        rest_gate: add a :class:`~granular_pyg.nn.rest_gate.RestGate`: one more output
-            column, the gate logit.
 
     Raises:
         InputError: ``processor.latent != latent`` or a non-positive width.
@@ -46,7 +42,6 @@ class EncodeProcessDecode(nn.Module):
         processor: Processor,
         latent: int = 128,
         mlp_layers: int = 2,
-        rest_gate: bool = False,
     ) -> None:
         super().__init__()
         latent = _check_int("latent", latent, 1)
@@ -66,7 +61,6 @@ class EncodeProcessDecode(nn.Module):
         self.edge_encoder = MLP(self.edge_in, latent, latent, mlp_layers, layer_norm=True)
         self.processor = processor
         self.decoder = MLP(latent, latent, self.out_dim, mlp_layers, layer_norm=False)
-        self.gate = RestGate(latent, mlp_layers) if rest_gate else None
 
     def forward(self, x: Tensor, edge_index: Tensor, edge_attr: Tensor) -> Tensor:
         """Predict one output per node.
@@ -77,7 +71,7 @@ class EncodeProcessDecode(nn.Module):
             edge_attr: ``[num_edges, edge_in]`` edge features.
 
         Returns:
-            ``[num_nodes, out_dim]``, ``[num_nodes, out_dim + 1]`` with the gate logit last.
+            ``[num_nodes, out_dim]``.
 
         Raises:
             InputError: wrong shapes or dtypes, or out-of-range node indices (values are not
@@ -88,7 +82,4 @@ class EncodeProcessDecode(nn.Module):
         # Under autocast the inference path keeps the edge latents in the autocast dtype.
         edge_latents = self.edge_encoder(edge_attr, store_in_autocast_dtype=True)
         latent_x, _ = self.processor(self.node_encoder(x), edge_index, edge_latents, overwrite=True)
-        out = self.decoder(latent_x)
-        if self.gate is None:
-            return out
-        return torch.cat([out, self.gate(latent_x).to(out.dtype)], dim=1)
+        return self.decoder(latent_x)

@@ -42,7 +42,6 @@ from torch_geometric.utils import scatter
 
 from granular_pyg.errors import InputError
 from granular_pyg.nn.mlp import MLP, _check_int
-from granular_pyg.nn.rest_gate import RestGate
 
 __all__ = [
     "HorizontalEquivariantLayer",
@@ -206,8 +205,6 @@ class HorizontalEquivariantNetwork(nn.Module):
         edge_in: edge scalar inputs.
         processor: the processor; its ``latent`` is the network's.
         mlp_layers: hidden layers of the encoder and decoder MLPs.
-        rest_gate: add a :class:`~granular_pyg.nn.rest_gate.RestGate`: a fourth output column,
-            the gate logit (a scalar: equivariance holds).
     """
 
     def __init__(
@@ -217,7 +214,6 @@ class HorizontalEquivariantNetwork(nn.Module):
         edge_in: int,
         processor: HorizontalEquivariantProcessor,
         mlp_layers: int = 2,
-        rest_gate: bool = False,
     ) -> None:
         super().__init__()
         latent, channels = processor.latent, processor.channels
@@ -227,7 +223,6 @@ class HorizontalEquivariantNetwork(nn.Module):
         self.edge_encoder = MLP(edge_in, latent, latent, mlp_layers, layer_norm=True)
         self.processor = processor
         self.decoder = MLP(latent, latent, 1 + channels, mlp_layers, layer_norm=False)
-        self.gate = RestGate(latent, mlp_layers) if rest_gate else None
 
     def forward(
         self,
@@ -249,7 +244,7 @@ class HorizontalEquivariantNetwork(nn.Module):
             from_wall: ``[E]`` bool, the edges from wall nodes (the processor's ``wall_sum``).
 
         Returns:
-            ``[N, 3]``: ``(a_x, a_y, a_z)``; ``[N, 4]`` with the gate logit last.
+            ``[N, 3]``: ``(a_x, a_y, a_z)``.
         """
         s = self.node_encoder(x)
         v = self.vec_encoder(vec.transpose(1, 2)).transpose(1, 2)
@@ -257,7 +252,4 @@ class HorizontalEquivariantNetwork(nn.Module):
         s, v = self.processor(s, v, edge_index, e, edge_vec.to(s.dtype), from_wall)
         out = self.decoder(s)
         horizontal = (out[:, 1:].unsqueeze(-1) * v.to(out.dtype)).sum(dim=1)  # [N, 2]
-        columns = [horizontal, out[:, :1]]
-        if self.gate is not None:
-            columns.append(self.gate(s).to(out.dtype))
-        return torch.cat(columns, dim=1)
+        return torch.cat([horizontal, out[:, :1]], dim=1)

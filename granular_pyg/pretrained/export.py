@@ -42,6 +42,7 @@ def export(
     folder: Path | None = None,
     out: str | Path | None = None,
     overwrite: bool = False,
+    sleep: bool | None = None,
 ) -> Path:
     """Write the slim copy of ``ckpt`` as the pretrained model ``name``; returns its path.
 
@@ -54,6 +55,9 @@ def export(
             ``overwrite``).
         out: the file to write (never ``ckpt``; an existing one only with ``overwrite``).
         overwrite: replace an existing output, the shipped ``pretrained:<name>`` included.
+        sleep: set ``model.sleep`` (:mod:`granular_pyg.sleep`, a rule without weights) in the
+            shipped config; None keeps the checkpoint's. A shipped model given as ``ckpt``
+            keeps its record (source, steps, training data, note unless a new one is given).
 
     Raises:
         InputError: an unknown name, no output named, an unsafe, unreadable or non-training
@@ -79,20 +83,24 @@ def export(
         target, [source], overwrite, option="--out", overwrite_option="--overwrite"
     )
     config = dict(full["config"])
+    if sleep is not None:
+        config["model"] = dict(config["model"]) | {"sleep": bool(sleep)}
     built = build_model(config["model"], f"ckpt: {path}", full["state_dict"])
     load_weights(built, full, f"ckpt: {path}")
-    trained_on = dict(config.get("data") or {})
-    config["data"] = trained_on | {"root": None, "sample": sample}
+    record = {
+        "source": str(ckpt),
+        "global_step": int(full.get("global_step", 0)),
+        "trained_on": dict(config.get("data") or {}),
+        "note": note,
+    }
+    if isinstance(full.get("pretrained"), dict):  # a shipped model: its record stands
+        record = full["pretrained"] | ({"note": note} if note else {})
+    config["data"] = dict(record["trained_on"]) | {"root": None, "sample": sample}
     slim = {
         "config": config,
         "state_dict": {k: v for k, v in full["state_dict"].items() if k.startswith("sim.")},
         "model_card": full.get("model_card") or {},
-        "pretrained": {
-            "source": str(ckpt),
-            "global_step": int(full.get("global_step", 0)),
-            "trained_on": trained_on,
-            "note": note,
-        },
+        "pretrained": record,
     }
     with atomic_path(target) as tmp:
         torch.save(slim, tmp)
@@ -114,9 +122,23 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="replace an existing --out; without --out: replace the shipped pretrained:<name>",
     )
+    parser.add_argument(
+        "--sleep",
+        choices=["true", "false"],
+        default=None,
+        help="set model.sleep in the shipped config (default: the checkpoint's)",
+    )
     args = parser.parse_args(argv)
+    sleep = None if args.sleep is None else args.sleep == "true"
     out = export(
-        args.ckpt, args.name, args.sample or args.name, args.note, None, args.out, args.overwrite
+        args.ckpt,
+        args.name,
+        args.sample or args.name,
+        args.note,
+        None,
+        args.out,
+        args.overwrite,
+        sleep,
     )
     print(f"pretrained model: {out} ({out.stat().st_size / 1e3:.0f} kB)")
 

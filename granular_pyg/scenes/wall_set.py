@@ -95,21 +95,40 @@ class WallSet:
         names = ", ".join(f"{w.name}: {len(w.faces)}" for w in self.walls)
         return f"WallSet({names})"
 
+    @staticmethod
+    def _events(wall: Wall) -> list[float]:
+        """Times (s) at which ``wall`` is removed or its motion starts, stops or reverses."""
+        m = wall.motion
+        events = [] if wall.removal_time is None else [wall.removal_time]
+        if m.kind != "static":
+            events += [m.start_time, *m.reverse_times]
+            if m.stop_time is not None:
+                events.append(m.stop_time)
+        return events
+
+    def event_times(self) -> list[float]:
+        """Sorted times (s) of every wall's events (removal; motion start, stop, reversal)."""
+        return sorted({float(e) for wall in self.walls for e in self._events(wall)})
+
+    def moving(self, t0: float, t1: float) -> list[int]:
+        """Indices of the walls in motion at some time within ``(t0, t1)`` (s)."""
+        return [
+            i
+            for i, wall in enumerate(self.walls)
+            if wall.motion.kind != "static"
+            and wall.motion.start_time < t1
+            and (wall.motion.stop_time is None or wall.motion.stop_time > t0)
+        ]
+
     def changing(self, t0: float, t1: float) -> list[int]:
         """Indices of the walls removed, or whose motion starts, stops or reverses, at a
         recorded time in ``[t0, t1]`` (s, to 1 ns: recorded times are sums of frame spacings):
         the events a learned step over it holds."""
-        changed = []
-        for i, wall in enumerate(self.walls):
-            m = wall.motion
-            events = [] if wall.removal_time is None else [wall.removal_time]
-            if m.kind != "static":
-                events += [m.start_time, *m.reverse_times]
-                if m.stop_time is not None:
-                    events.append(m.stop_time)
-            if any(t0 - 1e-9 <= e <= t1 + 1e-9 for e in events):
-                changed.append(i)
-        return changed
+        return [
+            i
+            for i, wall in enumerate(self.walls)
+            if any(t0 - 1e-9 <= e <= t1 + 1e-9 for e in self._events(wall))
+        ]
 
     def near(
         self, points: torch.Tensor, reach: float, time: float, walls: list[int]

@@ -12,8 +12,14 @@ import torch
 from matplotlib.figure import Figure
 
 from granular_pyg.errors import InputError
-from granular_pyg.inference import available_steps, matching_frames, rollout_trajectory
+from granular_pyg.inference import (
+    available_steps,
+    initial_frames,
+    matching_frames,
+    rollout_trajectory,
+)
 from granular_pyg.metrics import emd, outlet_point
+from granular_pyg.scenes.wall_set import WallSet
 
 __all__ = ["RolloutValidation", "rollout_figure"]
 
@@ -67,6 +73,11 @@ class RolloutValidation(L.Callback):
         trajectory: index of the validation trajectory.
         every_n_steps: rollout every n optimiser steps, or None.
         every_seconds: rollout every so many seconds of training (s), or None.
+        start: ``"first_frame"``, or ``"event"``: from the initial states whose first learned
+            step holds the trajectory's first wall event (a lid removed, a drum that starts,
+            stops or reverses) halfway through, so that a model which never lets a bed at rest
+            go shows in the rollout (a hopper's first 0.5 s are at rest); from the first frame
+            where the trajectory has no such event.
     """
 
     def __init__(
@@ -76,7 +87,12 @@ class RolloutValidation(L.Callback):
         trajectory: int = 0,
         every_n_steps: int | None = None,
         every_seconds: float | None = None,
+        start: str = "first_frame",
     ) -> None:
+        if start not in ("first_frame", "event"):
+            raise InputError(
+                f"rollout_validation.start: expected 'first_frame' or 'event', got {start!r}"
+            )
         for name, value in (
             ("every_n_epochs", every_n_epochs),
             ("every_n_steps", every_n_steps),
@@ -88,6 +104,7 @@ class RolloutValidation(L.Callback):
                 )
         self.every_n_epochs, self.steps, self.trajectory = every_n_epochs, steps, trajectory
         self.every_n_steps, self.every_seconds = every_n_steps, every_seconds
+        self.start = start
         self._last_step, self._last_time = 0, time.perf_counter()
         self.rollouts = 0
 
@@ -112,6 +129,21 @@ class RolloutValidation(L.Callback):
             return
         self._rollout(trainer, pl_module)
 
+    def start_frame(self, sim, traj) -> int:
+        """The rollout's first frame in ``traj`` (see ``start``)."""
+        if self.start == "first_frame" or traj.scene is None:
+            return 0
+        k, initial = initial_frames(sim, traj, 0)
+        earliest = float(traj.times[initial[-1]])
+        later = [e for e in WallSet(traj.scene).event_times() if e > earliest + 1e-9]
+        if not later:
+            return 0
+        # the last initial state half a learned step before the event (at it when k = 1: a
+        # wall removed at a step's end is there for that step)
+        before = later[0] - (k - 1) / 2 * traj.frame_dt + 1e-6 * traj.frame_dt
+        last = int(np.searchsorted(traj.times, before, "right")) - 1
+        return max(0, last - (len(initial) - 1) * k)
+
     def _rollout(self, trainer: L.Trainer, pl_module: L.LightningModule) -> None:
         if trainer.fast_dev_run or not trainer.is_global_zero:
             return
@@ -120,10 +152,13 @@ class RolloutValidation(L.Callback):
         sim = pl_module.sim
         was_training = sim.training
         sim.eval()
-        available = available_steps(sim, traj)
+        start = self.start_frame(sim, traj)
+        available = available_steps(sim, traj, start)
         averaged = getattr(pl_module, "averaged_weights", contextlib.nullcontext)
         with torch.no_grad(), averaged():
-            rollout = rollout_trajectory(sim, traj, min(self.steps, available), progress=False)
+            rollout = rollout_trajectory(
+                sim, traj, min(self.steps, available), start_frame=start, progress=False
+            )
         sim.train(was_training)
         first, steps = rollout.metadata["initial_frames"], rollout.metadata["steps"]
         if steps == 0:

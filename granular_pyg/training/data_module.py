@@ -14,8 +14,8 @@ from granular_pyg.data import NormalizationStats, Window, WindowDataset, compute
 from granular_pyg.data.windows import load_split
 from granular_pyg.errors import InputError, finite_number, whole_number
 from granular_pyg.geometry import random_horizontal_frame
-from granular_pyg.nn.rest_gate import gate_labels
 from granular_pyg.simulator import LearnedSimulator
+from granular_pyg.sleep import at_rest
 from granular_pyg.training.objectives import Objective
 from granular_pyg.training.reach_mask import within_reach_of_events
 from granular_pyg.transforms import AddRandomWalkNoise
@@ -35,12 +35,8 @@ class EpochSampler(Sampler[tuple[int, int]]):
         num_samples: int | None,
         seed: int,
         shuffle: bool,
-        events: list[int] | None = None,
-        event_share: float = 0.0,
     ) -> None:
         self.size, self.seed, self.shuffle = size, seed, shuffle
-        # a share of the draws replaced by windows of ``events``, also from (seed, epoch)
-        self.events, self.event_share = list(events or []), float(event_share)
         self.num_samples = size if num_samples is None else int(num_samples)
         self.epoch = 0
         # (epoch, samples) a run resumed mid-epoch leaves out of that epoch's next pass
@@ -60,12 +56,6 @@ class EpochSampler(Sampler[tuple[int, int]]):
             reps = -(-self.num_samples // self.size)
             perms = torch.cat([torch.randperm(self.size, generator=g) for _ in range(reps)])
             order = perms[: self.num_samples].tolist()
-            if self.events and self.event_share > 0:
-                swap = (torch.rand(len(order), generator=g) < self.event_share).tolist()
-                pick = torch.randint(len(self.events), (len(order),), generator=g).tolist()
-                order = [
-                    self.events[p] if w else o for o, w, p in zip(order, swap, pick, strict=True)
-                ]
         skip = 0
         if self.skip_next is not None and self.skip_next[0] == self.epoch:
             skip = self.skip_next[1]
@@ -99,17 +89,6 @@ class ResumableLoader(DataLoader):
             self.sampler.skip_next = (int(state["epoch"]), done)
 
 
-#: A particle whose history moves slower than this (m/s) at every step is at rest.
-REST_SPEED = 1e-3
-
-
-def at_rest(pos_seq: torch.Tensor, dt: float) -> torch.Tensor:
-    """``[N]`` bool: the particles of ``pos_seq [N, H + 1, 3]`` (m, the clean history, a
-    learned step ``dt`` (s) apart) that move slower than :data:`REST_SPEED` in every step."""
-    step = torch.linalg.vector_norm(pos_seq.diff(dim=1), dim=-1)
-    return (step < REST_SPEED * dt).all(dim=1)
-
-
 class _Collate:
     """Windows -> one Batch of graphs (runs in the loader's worker processes).
 
@@ -118,8 +97,7 @@ class _Collate:
     are built. The noise of a window is seeded by ``(seed, epoch, window)``, so it does not
     depend on workers or on resuming. With ``augment`` each window is seen in a random frame
     turned about gravity and mirrored half the time (``window.frame``, seeded the same way):
-    features and target in that frame, the graph unchanged. With a model's rest gate each
-    particle also gets its gate label (``graph.gate_label [N]``: :func:`gate_labels`).
+    features and target in that frame, the graph unchanged.
     """
 
     def __init__(
@@ -133,35 +111,22 @@ class _Collate:
         drift_std: float = 0.0,
         mask_beyond_reach: bool = False,
         rest_weight: float = 1.0,
-        clean_share: float = 0.0,
     ):
         self.sim, self.noise_std, self.seed = sim, noise_std, seed
-        self.rest_weight, self.clean_share = rest_weight, clean_share
+        self.rest_weight = rest_weight
         self.offset_std, self.drift_std = offset_std, drift_std
         self.mask_beyond_reach = mask_beyond_reach
         self.correct_positions = correct_positions
         self.augment = augment
 
-    def _clean(self, w: Window) -> bool:
-        """Whether window ``w`` goes without noise (a share ``clean_share`` of the windows,
-        drawn from its own seed, so the noise of the others is as without the option)."""
-        if self.clean_share <= 0:
-            return False
-        key = zlib.crc32(f"clean/{self.seed}/{w.epoch}/{w.index}".encode())
-        return bool(torch.rand((), generator=torch.Generator().manual_seed(key)) < self.clean_share)
-
     def __call__(self, windows: list[Window]) -> Batch:
         graphs = []
-        dt, gate = float(self.sim.dt), self.sim.rest_gate
+        dt = float(self.sim.dt)
         noised = self.noise_std > 0 or self.offset_std > 0 or self.drift_std > 0
         for w in windows:
             pos_seq, target = w.pos_seq, w.target_pos
-            rest = at_rest(pos_seq, dt) if self.rest_weight != 1.0 or gate else None
-            clean = not noised or self._clean(w)
-            labels = None
-            if gate:
-                labels = gate_labels(rest, target - pos_seq[:, -1], REST_SPEED * dt, clean)
-            if not clean:
+            rest = at_rest(pos_seq, dt) if self.rest_weight != 1.0 else None
+            if noised:
                 key = zlib.crc32(f"{self.seed}/{w.epoch}/{w.index}".encode())
                 noise = AddRandomWalkNoise(
                     self.noise_std,
@@ -185,8 +150,6 @@ class _Collate:
                     w.walls, pos_seq[:, -1], w.time, dt, self.sim.reach
                 )
                 graph.y[~reached] = float("nan")
-            if labels is not None:  # the rest gate's own loss; none where the loss masks
-                graph.gate_label = torch.where(torch.isfinite(graph.y).all(dim=1), labels, 0.0)
             if self.rest_weight != 1.0:
                 graph.weight = torch.where(rest, self.rest_weight, 1.0).to(graph.y.dtype)
             graphs.append(graph)
@@ -227,14 +190,6 @@ class TrajectoryDataModule(L.LightningDataModule):
             (slower than 1 mm/s at every step: :func:`at_rest`) this many times more. A bed
             at rest needs its acceleration to about 0.01 m/s^2, in a loss whose scale is set
             by the flow's (m/s^2).
-        clean_share: the share of training windows (0-1) that get no noise at all: a bed at
-            rest exactly as the truth holds it, what a model's rest gate
-            (``model.rest_gate``) learns to close on; every other window is noised as without
-            it.
-        event_share: the share of training draws (0-1) replaced by windows that hold a wall
-            event (``WindowDataset.event_windows``: a lid removed, a drum started, stopped or
-            reversed), a few per trajectory: a bed's release from rest, which a rest gate must
-            learn to open on.
         train_samples_per_epoch: windows drawn per epoch (None: all of them once).
         val_samples: validation windows per epoch (None: all).
         trajectories: optional explicit lists ``{"train": [...], "valid": [...]}`` of files.
@@ -262,8 +217,6 @@ class TrajectoryDataModule(L.LightningDataModule):
         drift_noise_std: float = 0.0,
         mask_beyond_reach: bool = False,
         rest_weight: float = 1.0,
-        clean_share: float = 0.0,
-        event_share: float = 0.0,
         train_samples_per_epoch: int | None = None,
         val_samples: int | None = None,
         trajectories: dict | None = None,
@@ -289,12 +242,6 @@ class TrajectoryDataModule(L.LightningDataModule):
             )
         self.mask_beyond_reach = mask_beyond_reach
         self.rest_weight = finite_number("data.rest_weight", rest_weight, minimum=0.0)
-        self.clean_share = finite_number("data.clean_share", clean_share, minimum=0.0)
-        if self.clean_share > 1:
-            raise InputError(f"data.clean_share: expected a share from 0 to 1, got {clean_share!r}")
-        self.event_share = finite_number("data.event_share", event_share, minimum=0.0)
-        if self.event_share > 1:
-            raise InputError(f"data.event_share: expected a share from 0 to 1, got {event_share!r}")
         if noise_target not in ("velocity", "position"):
             raise InputError(
                 f"noise_target: expected 'velocity' or 'position', got {noise_target!r}"
@@ -348,12 +295,6 @@ class TrajectoryDataModule(L.LightningDataModule):
         sim.set_normalization(
             self.stats.vel_mean, self.stats.vel_std, self.stats.acc_mean, self.stats.acc_std
         )
-        noised = self.noise_std > 0 or self.offset_noise_std > 0 or self.drift_noise_std > 0
-        if sim.rest_gate and noised and self.clean_share == 0:
-            raise InputError(
-                "model.rest_gate learns to shut only on windows without noise: set "
-                "data.clean_share above 0 (e.g. 0.25), or model.rest_gate=false"
-            )
         sim.dt.fill_(self.dt)
         self.sim = sim
 
@@ -368,7 +309,6 @@ class TrajectoryDataModule(L.LightningDataModule):
         drift: float = 0.0,
         mask: bool = False,
         rest_weight: float = 1.0,
-        clean_share: float = 0.0,
         **kwargs,
     ) -> DataLoader:
         if self.sim is None:
@@ -383,12 +323,8 @@ class TrajectoryDataModule(L.LightningDataModule):
             drift,
             mask,
             rest_weight,
-            clean_share,
         )
-        events = dataset.event_windows() if shuffle and self.event_share > 0 else None
-        sampler = EpochSampler(
-            len(dataset), num_samples, self.seed, shuffle, events, self.event_share
-        )
+        sampler = EpochSampler(len(dataset), num_samples, self.seed, shuffle)
         return (ResumableLoader if kwargs else DataLoader)(
             dataset,
             batch_size=self.batch_size,
@@ -415,7 +351,6 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.drift_noise_std,
             self.mask_beyond_reach,
             self.rest_weight,
-            self.clean_share,
             progress=self._batches_done if self.trainer is not None else None,
         )
 

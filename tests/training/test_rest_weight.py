@@ -8,7 +8,8 @@ from granular_pyg.data.windows import WindowDataset
 from granular_pyg.nn import Processor
 from granular_pyg.samples import sample_files
 from granular_pyg.simulator import LearnedSimulator
-from granular_pyg.training.data_module import REST_SPEED, _Collate, at_rest
+from granular_pyg.sleep import REST_SPEED, at_rest
+from granular_pyg.training.data_module import _Collate
 from granular_pyg.training.objectives import OneStep, masked_mse
 
 

@@ -1,0 +1,191 @@
+"""``model.sleep``: a particle at rest beyond the reach of anything that moves or changes gets
+zero acceleration. A bed at rest is held to the bit, a flowing bed is unchanged, a lid's
+removal or a moving wall wakes what the model can reach, news spreads ``num_steps`` hops a
+step, and the rule turns and mirrors with the scene."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.sparse.csgraph import shortest_path
+
+from granular_pyg.checkpoint.saved_config import migrate_config
+from granular_pyg.errors import InputError
+from granular_pyg.evaluation.variants import held_still
+from granular_pyg.geometry import horizontal_frame
+from granular_pyg.io import read_trajectory
+from granular_pyg.samples import sample_files
+from granular_pyg.scenes import WallSet
+from granular_pyg.scenes.redescribe import turned_scene
+from granular_pyg.simulator import ParticleProps
+from granular_pyg.sleep import REST_SPEED, at_rest, spread
+from tests.test_symmetries import _sim, _window
+
+
+def _bed(sample: str = "hopper", frame: int = 0):
+    """The bundled ``sample``'s bed at ``frame`` held: a history at rest, the trajectory, the
+    time and the particle properties."""
+    traj = read_trajectory(sample_files(sample)[0])
+    keep = np.isfinite(traj.positions[frame]).all(1)
+    seq = torch.from_numpy(traj.positions[frame][keep]).double()[:, None].repeat(1, 6, 1)
+    return traj, seq, float(traj.times[frame]), ParticleProps.of(traj)[torch.from_numpy(keep)]
+
+
+def test_at_rest_tiny_cases():
+    dt = 0.01
+    seq = torch.zeros(3, 3, 3, dtype=torch.float64)
+    seq[1, 2, 0] = 0.5 * REST_SPEED * dt  # slower than REST_SPEED: at rest
+    seq[2, 1:, 2] = -REST_SPEED * dt  # one step at REST_SPEED: moving
+    assert at_rest(seq, dt).tolist() == [True, True, False]
+
+
+def _chain(n: int = 6):
+    """``n`` particle nodes on a chain of edges both ways, plus a wall node joined to both
+    ends: ``(edge_index, is_wall)``."""
+    pairs = [(i, i + 1) for i in range(n - 1)] + [(n, 0), (n, n - 1)]
+    edge_index = torch.tensor(pairs + [(j, i) for i, j in pairs]).T
+    return edge_index, torch.tensor([False] * n + [True])
+
+
+@pytest.mark.parametrize(
+    "moving, hops, want",
+    [
+        ([0], 2, [1, 1, 1, 0, 0, 0]),
+        ([0], 0, [1, 0, 0, 0, 0, 0]),
+        ([], 3, [0, 0, 0, 0, 0, 0]),  # nothing moves: everything sleeps
+        ([3], 2, [0, 1, 1, 1, 1, 1]),
+        ([5], 1, [0, 0, 0, 0, 1, 1]),  # news does not pass through the wall node to 0
+    ],
+)
+def test_spread_tiny_cases(moving, hops, want):
+    edge_index, is_wall = _chain()
+    awake = torch.zeros(7, dtype=torch.bool)
+    awake[moving] = True
+    assert spread(awake, edge_index, is_wall, hops)[:6].int().tolist() == want
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_spread_matches_hop_distances_on_random_graphs(seed):
+    g = torch.Generator().manual_seed(seed)
+    n, w, hops = 30, 4, 2
+    edge_index = torch.randint(n + w, (2, 60), generator=g)
+    is_wall = torch.arange(n + w) >= n
+    awake = torch.zeros(n + w, dtype=torch.bool)
+    awake[:n] = torch.rand(n, generator=g) < 0.1
+    got = spread(awake, edge_index, is_wall, hops)[:n]
+    adj = np.zeros((n, n))  # brute force: hop distances over particle-to-particle edges
+    for s, d in edge_index.T.tolist():
+        if s < n and d < n:
+            adj[s, d] = 1
+    dist = shortest_path(adj, unweighted=True)
+    start = awake[:n].numpy()
+    want = (dist[start] <= hops).any(axis=0) if start.any() else np.zeros(n, bool)
+    assert got.tolist() == want.tolist()
+
+
+@pytest.mark.parametrize("processor", ["bgnn", "equivariant"])
+def test_a_sleeping_bed_is_held_to_the_bit(processor):
+    traj, seq, t, props = _bed()
+    walls = WallSet(held_still(traj, 0.1).scene)  # the lid never removed
+    awake_model, sleeping = _sim(processor, "both"), _sim(processor, "both", sleep=True)
+    start, moved = seq.clone(), seq.clone()
+    for k in range(10):
+        time = t + k * float(sleeping.dt)
+        seq = torch.cat([seq[:, 1:], sleeping.step(seq, walls, time, props=props)[:, None]], 1)
+        nxt = awake_model.step(moved, walls, time, props=props)
+        moved = torch.cat([moved[:, 1:], nxt[:, None]], 1)
+    assert torch.equal(seq, start)
+    assert not torch.equal(moved, start)  # the same network without sleeping sinks
+
+
+@pytest.mark.parametrize("processor", ["bgnn", "equivariant"])
+def test_a_flowing_bed_is_unchanged(processor):
+    traj, seq, t, present = _window("hopper", 30)  # flowing, the lid gone
+    props = ParticleProps.of(traj)[present]
+    walls = WallSet(traj.scene)
+    plain, sleeping = _sim(processor, "both"), _sim(processor, "both", sleep=True)
+    with torch.no_grad():
+        a = plain.predict_acceleration(seq, walls, t, props=props)
+        b = sleeping.predict_acceleration(seq, walls, t, props=props)
+        graph = sleeping.build_graph(seq, walls, t, props=props)
+        awake = sleeping.awake(seq, graph, walls, t)
+    assert awake.float().mean() > 0.9
+    assert torch.equal(b[awake], a[awake]) and not b[~awake].any()
+
+
+def test_a_lid_removed_wakes_what_the_model_reaches_for_its_step_only():
+    sim = _sim("equivariant", "both", sleep=True)
+    traj, seq, _, props = _bed()
+    walls, dt = WallSet(traj.scene), float(sim.dt)  # the lid is removed at 0.02 s
+    removal = walls.event_times()[0]
+    bottom = seq[:, -1, 2] < seq[:, -1, 2].min() + 0.002  # the layer on the lid
+    for t, wakes in ((removal - dt, False), (removal - 0.5 * dt, True), (removal, True)):
+        woken = sim.woken_by_walls(seq[:, -1], walls, t)
+        assert (woken is not None) == wakes  # a removal at the step's end wakes nothing
+        nxt = sim.step(seq, walls, t, props=props)
+        moved = (nxt - seq[:, -1]).norm(dim=1) > 0
+        if wakes:  # within reach: the network's own acceleration; beyond: asleep, at rest
+            near = walls.near(seq[:, -1], sim.reach, t, walls.changing(t, t + dt))
+            assert torch.equal(woken, near) and woken[bottom].all() and not woken.all()
+            assert torch.equal(moved, woken)
+        else:
+            assert not moved.any()
+    assert sim.woken_by_walls(seq[:, -1], walls, removal + dt) is None  # the next step
+
+
+def test_a_moving_wall_wakes_the_particles_it_reaches():
+    sim = _sim("equivariant", "both", sleep=True)
+    traj, seq, t, _ = _bed("drum")  # the bundled drum turns from t = 0
+    walls = WallSet(traj.scene)
+    woken = sim.woken_by_walls(seq[:, -1], walls, t + 0.1)
+    assert woken is not None and woken.any()
+    assert torch.equal(woken, walls.near(seq[:, -1], sim.reach, t + 0.1, walls.moving(t, t + 1)))
+    held = WallSet(held_still(traj, 0.1).scene)  # the drum at rest: nothing wakes
+    assert sim.woken_by_walls(seq[:, -1], held, t + 0.1) is None
+
+
+def test_sleeping_does_not_act_in_a_training_pass():
+    sim = _sim("equivariant", "both", sleep=True).float()
+    traj, seq, t, props = _bed()
+    walls = WallSet(held_still(traj, 0.1).scene)
+    seq = seq.float()
+    with torch.no_grad():
+        assert not sim.predict_acceleration(seq, walls, t, props=props).any()
+    sim.train()
+    acc = sim.predict_acceleration(seq, walls, t, props=props)
+    assert acc.abs().min() > 0  # every particle learns its acceleration
+    acc.square().sum().backward()
+    assert all(p.grad is not None for p in sim.model.decoder.parameters())
+
+
+@pytest.mark.parametrize("mirror", [False, True])
+def test_sleeping_turns_and_mirrors_with_the_scene(mirror):
+    sim = _sim("equivariant", "both", sleep=True)
+    traj, seq, _, props = _bed()
+    walls = WallSet(traj.scene)
+    t = walls.event_times()[0] - 0.5 * float(sim.dt)  # part of the bed wakes
+    q = horizontal_frame(211.0 if mirror else 37.0, mirror=mirror)
+    with torch.no_grad():
+        acc = sim.predict_acceleration(seq, walls, t, props=props)
+        turned = WallSet(turned_scene(traj.scene, q))
+        moved = sim.predict_acceleration(seq @ q.T, turned, t, props=props)
+    assert acc.any() and not acc.all()
+    assert torch.equal(moved.abs().sum(1) > 0, acc.abs().sum(1) > 0)
+    assert torch.allclose(moved, acc @ q.T, atol=1e-5 * float(acc.abs().max()), rtol=0)
+
+
+def test_older_checkpoints_do_not_sleep_and_a_removed_rest_gate_is_refused():
+    old = {"model": {"normals": "both"}, "data": {}}
+    assert migrate_config(old)["model"]["sleep"] is False
+    for section, key, value in (("model", "rest_gate", True), ("data", "clean_share", 0.25)):
+        cfg = {"model": {"normals": "both"}, "data": {}}
+        cfg[section][key] = value
+        with pytest.raises(InputError, match=rf"{section}\.{key}"):
+            migrate_config(cfg)
+    assert "rest_gate" not in migrate_config(old | {"model": {"rest_gate": False}})["model"]
+
+
+def test_sleep_must_be_a_flag():
+    with pytest.raises(InputError, match=r"model\.sleep"):
+        _sim("bgnn", "both", sleep="yes")
