@@ -25,6 +25,7 @@ from granular_pyg.checkpoint import (
     read_training_checkpoint,
     resolve_checkpoint,
 )
+from granular_pyg.checkpoint.saved_config import migrate_config
 from granular_pyg.cli import reports_errors
 from granular_pyg.errors import InputError
 from granular_pyg.io import atomic_path, check_output
@@ -82,7 +83,7 @@ def export(
     target = check_output(
         target, [source], overwrite, option="--out", overwrite_option="--overwrite"
     )
-    config = dict(full["config"])
+    config = migrate_config(full["config"])  # today's keys: an older model ships as it was
     if sleep is not None:
         config["model"] = dict(config["model"]) | {"sleep": bool(sleep)}
     built = build_model(config["model"], f"ckpt: {path}", full["state_dict"])
