@@ -65,7 +65,7 @@ from granular_pyg.nn import (
 )
 from granular_pyg.progress import show_progress
 from granular_pyg.scenes import Materials, WallSet
-from granular_pyg.sleep import at_rest, spread
+from granular_pyg.sleep import WAKE_ACCELERATION, at_rest, spread, supported
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 
 __all__ = ["MATERIAL_FEATURES", "LearnedSimulator", "ParticleProps", "WallGuard"]
@@ -528,6 +528,7 @@ class LearnedSimulator(nn.Module):
             edge_attr=edge_attr.to(dtype),
             is_wall=data.is_wall,
             num_real=num_real,
+            pos=data.pos,
         )
 
     def _equivariant_features(
@@ -597,6 +598,7 @@ class LearnedSimulator(nn.Module):
             edge_vec=disp[:, :2].contiguous(),
             is_wall=data.is_wall,
             num_real=num_real,
+            pos=data.pos,
         )
 
     def _contact_column(
@@ -661,17 +663,25 @@ class LearnedSimulator(nn.Module):
         return self._network_output(graph)
 
     def awake(
-        self, pos_seq: torch.Tensor, graph: Data, walls: WallSet, time: float
+        self,
+        pos_seq: torch.Tensor,
+        graph: Data,
+        walls: WallSet,
+        time: float,
+        acceleration: torch.Tensor,
     ) -> torch.Tensor:
         """``[N]`` bool: the particles of ``pos_seq [N, H + 1, 3]`` (m) that are awake
         (:mod:`granular_pyg.sleep`) for the learned step from ``time`` (s) over ``graph``
-        (their graph): moved in their history, or within ``num_steps`` hops of one that did, or
-        within ``reach`` of a wall that moves or changes in the step."""
+        (their graph, with node positions ``pos``), given the network's ``acceleration
+        [N, 3]`` (m/s^2): moved in their history, given more than ``WAKE_ACCELERATION``, or
+        with no node of the graph beneath them (nothing to rest on), or within ``num_steps`` hops
+        of one that is, or within ``reach`` of a wall that moves or changes in the step."""
         real = ~graph.is_wall
-        nodes = torch.zeros(real.shape[0], dtype=torch.bool, device=pos_seq.device)
-        nodes[real] = ~at_rest(pos_seq, float(self.dt))
+        seeds = ~supported(graph.pos, graph.edge_index)
+        pushed = torch.linalg.vector_norm(acceleration, dim=1) > WAKE_ACCELERATION
+        seeds[real] |= ~at_rest(pos_seq, float(self.dt)) | pushed
         hops = int(self.model.processor.num_steps)
-        awake = spread(nodes, graph.edge_index, graph.is_wall, hops)[real]
+        awake = spread(seeds, graph.edge_index, graph.is_wall, hops)[real]
         if not bool(awake.all()):
             woken = self.woken_by_walls(pos_seq[:, -1], walls, time)
             if woken is not None:
@@ -730,7 +740,7 @@ class LearnedSimulator(nn.Module):
         out = self._network_output(graph)
         acc = out * self.acc_std + self.acc_mean
         if self.sleep and not (self.training and torch.is_grad_enabled()):
-            acc = acc * self.awake(pos_seq, graph, walls, time)[:, None]
+            acc = acc * self.awake(pos_seq, graph, walls, time, acc)[:, None]
         if frame is not None:
             acc = acc @ frame.to(acc)
         return acc

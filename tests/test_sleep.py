@@ -1,9 +1,11 @@
 """``model.sleep``: a particle at rest beyond the reach of anything that moves or changes gets
-zero acceleration. A bed at rest is held to the bit, a flowing bed is unchanged, a lid's
-removal or a moving wall wakes what the model can reach, news spreads ``num_steps`` hops a
-step, and the rule turns and mirrors with the scene."""
+zero acceleration. A bed at rest is held to the bit, a bed at rest in mid-air falls, a flowing
+bed is unchanged, a lid's removal or a moving wall wakes what the model can reach, news spreads
+``num_steps`` hops a step, and the rule turns and mirrors with the scene."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -19,8 +21,16 @@ from granular_pyg.samples import sample_files
 from granular_pyg.scenes import WallSet
 from granular_pyg.scenes.redescribe import turned_scene
 from granular_pyg.simulator import ParticleProps
-from granular_pyg.sleep import REST_SPEED, at_rest, spread
+from granular_pyg.sleep import REST_SPEED, WAKE_ACCELERATION, at_rest, spread, supported
 from tests.test_symmetries import _sim, _window
+
+
+def _quiet(processor: str = "equivariant", sleep: bool = True, fall: float = 0.0):
+    """A random model whose accelerations are a few 0.1 m/s^2 about ``(0, 0, -fall)``: below
+    ``WAKE_ACCELERATION`` where ``fall`` is 0 (a settled bed's errors), above it at g."""
+    sim = _sim(processor, "both", sleep=sleep)
+    sim.set_normalization([0.0, 0.0, 0.0], [0.1, 0.1, 0.1], [0.0, 0.0, -fall], [0.1, 0.1, 0.1])
+    return sim
 
 
 def _bed(sample: str = "hopper", frame: int = 0):
@@ -88,7 +98,7 @@ def test_spread_matches_hop_distances_on_random_graphs(seed):
 def test_a_sleeping_bed_is_held_to_the_bit(processor):
     traj, seq, t, props = _bed()
     walls = WallSet(held_still(traj, 0.1).scene)  # the lid never removed
-    awake_model, sleeping = _sim(processor, "both"), _sim(processor, "both", sleep=True)
+    awake_model, sleeping = _quiet(processor, sleep=False), _quiet(processor)
     start, moved = seq.clone(), seq.clone()
     for k in range(10):
         time = t + k * float(sleeping.dt)
@@ -97,6 +107,51 @@ def test_a_sleeping_bed_is_held_to_the_bit(processor):
         moved = torch.cat([moved[:, 1:], nxt[:, None]], 1)
     assert torch.equal(seq, start)
     assert not torch.equal(moved, start)  # the same network without sleeping sinks
+    with torch.no_grad():
+        acc = awake_model.predict_acceleration(start, walls, t, props=props)  # same weights
+    assert 0 < float(acc.norm(dim=1).max()) < WAKE_ACCELERATION  # held for want of news
+
+
+def test_a_bed_at_rest_in_mid_air_wakes_and_falls():
+    traj, seq, t, props = _bed()
+    walls = WallSet(held_still(traj, 0.1).scene)
+    falling = _quiet(fall=9.81)  # the network gives g: no support
+    nxt = falling.step(seq, walls, t, props=props)
+    assert ((nxt - seq[:, -1])[:, 2] < 0).all()
+
+
+def test_supported_tiny_cases():
+    # node 1 rests on 0 (straight below), node 2 has 1 at 45 degrees below, node 3 has 2 level
+    # with it and 1 at 26.6 degrees below (under the 30 degree cone): nothing beneath
+    pos = torch.tensor([[0.0, 0, 0], [0, 0, 1], [1, 0, 2], [2, 0, 2]])
+    pairs = [(0, 1), (1, 2), (2, 3), (1, 3)]
+    edge_index = torch.tensor(pairs + [(j, i) for i, j in pairs]).T
+    assert supported(pos, edge_index).tolist() == [False, True, True, False]
+    # the same in any frame turned about gravity and mirrored
+    q = horizontal_frame(123.0, mirror=True).float()
+    assert torch.equal(supported(pos @ q.T, edge_index), supported(pos, edge_index))
+
+
+def test_a_bed_lifted_off_its_lid_wakes_from_below():
+    sim = _quiet()  # the network gives a few 0.1 m/s^2: too little to wake anything itself
+    traj, seq, t, props = _bed()
+    scene = held_still(traj, 0.1).scene
+    walls = WallSet(dataclasses.replace(scene, walls=[w for w in scene.walls if w.name == "lid"]))
+    with torch.no_grad():
+        on_lid = sim.build_graph(seq, walls, t, props=props)
+        acc = sim.predict_acceleration(seq, walls, t, props=props)
+    assert supported(on_lid.pos, on_lid.edge_index)[~on_lid.is_wall].all()
+    assert not acc.any()  # resting on its lid: asleep
+    lifted = seq + torch.tensor([0.0, 0.0, 0.05], dtype=seq.dtype)  # 5 cm above the lid
+    with torch.no_grad():
+        graph = sim.build_graph(lifted, walls, t, props=props)
+        acc = sim.predict_acceleration(lifted, walls, t, props=props)
+    z = lifted[:, -1, 2]
+    lowest = z < z.min() + 1e-4
+    below = supported(graph.pos, graph.edge_index)[~graph.is_wall]
+    assert not below[lowest].any()  # nothing under the lowest particles
+    assert acc[lowest].abs().sum(1).gt(0).all()  # they wake, and so does what they reach
+    assert acc.abs().sum(1).gt(0).float().mean() > 0.1
 
 
 @pytest.mark.parametrize("processor", ["bgnn", "equivariant"])
@@ -104,18 +159,18 @@ def test_a_flowing_bed_is_unchanged(processor):
     traj, seq, t, present = _window("hopper", 30)  # flowing, the lid gone
     props = ParticleProps.of(traj)[present]
     walls = WallSet(traj.scene)
-    plain, sleeping = _sim(processor, "both"), _sim(processor, "both", sleep=True)
+    plain, sleeping = _quiet(processor, sleep=False), _quiet(processor)
     with torch.no_grad():
         a = plain.predict_acceleration(seq, walls, t, props=props)
         b = sleeping.predict_acceleration(seq, walls, t, props=props)
         graph = sleeping.build_graph(seq, walls, t, props=props)
-        awake = sleeping.awake(seq, graph, walls, t)
+        awake = sleeping.awake(seq, graph, walls, t, a)
     assert awake.float().mean() > 0.9
     assert torch.equal(b[awake], a[awake]) and not b[~awake].any()
 
 
 def test_a_lid_removed_wakes_what_the_model_reaches_for_its_step_only():
-    sim = _sim("equivariant", "both", sleep=True)
+    sim = _quiet()
     traj, seq, _, props = _bed()
     walls, dt = WallSet(traj.scene), float(sim.dt)  # the lid is removed at 0.02 s
     removal = walls.event_times()[0]
@@ -128,7 +183,7 @@ def test_a_lid_removed_wakes_what_the_model_reaches_for_its_step_only():
         if wakes:  # within reach: the network's own acceleration; beyond: asleep, at rest
             near = walls.near(seq[:, -1], sim.reach, t, walls.changing(t, t + dt))
             assert torch.equal(woken, near) and woken[bottom].all() and not woken.all()
-            assert torch.equal(moved, woken)
+            assert moved[woken].all() and not moved.all()  # (and what lost its support)
         else:
             assert not moved.any()
     assert sim.woken_by_walls(seq[:, -1], walls, removal + dt) is None  # the next step
@@ -146,7 +201,7 @@ def test_a_moving_wall_wakes_the_particles_it_reaches():
 
 
 def test_sleeping_does_not_act_in_a_training_pass():
-    sim = _sim("equivariant", "both", sleep=True).float()
+    sim = _quiet().float()
     traj, seq, t, props = _bed()
     walls = WallSet(held_still(traj, 0.1).scene)
     seq = seq.float()
@@ -161,7 +216,7 @@ def test_sleeping_does_not_act_in_a_training_pass():
 
 @pytest.mark.parametrize("mirror", [False, True])
 def test_sleeping_turns_and_mirrors_with_the_scene(mirror):
-    sim = _sim("equivariant", "both", sleep=True)
+    sim = _quiet()
     traj, seq, _, props = _bed()
     walls = WallSet(traj.scene)
     t = walls.event_times()[0] - 0.5 * float(sim.dt)  # part of the bed wakes
