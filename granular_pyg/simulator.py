@@ -65,7 +65,7 @@ from granular_pyg.nn import (
 )
 from granular_pyg.progress import show_progress
 from granular_pyg.scenes import Materials, WallSet
-from granular_pyg.sleep import WAKE_ACCELERATION, at_rest, spread, supported
+from granular_pyg.sleep import QUORUM, WAKE_ACCELERATION, at_rest, spread, supported
 from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 
 __all__ = ["MATERIAL_FEATURES", "LearnedSimulator", "ParticleProps", "WallGuard"]
@@ -674,14 +674,16 @@ class LearnedSimulator(nn.Module):
         (:mod:`granular_pyg.sleep`) for the learned step from ``time`` (s) over ``graph``
         (their graph, with node positions ``pos``), given the network's ``acceleration
         [N, 3]`` (m/s^2): moved in their history, given more than ``WAKE_ACCELERATION``, or
-        with no node of the graph beneath them (nothing to rest on), or within ``num_steps`` hops
-        of one that is, or within ``reach`` of a wall that moves or changes in the step."""
+        with no node of the graph beneath them (nothing to rest on), or reached over
+        ``num_steps`` hops of ``QUORUM`` such neighbours, or within ``reach`` of a wall that
+        moves or changes in the step."""
         real = ~graph.is_wall
         seeds = ~supported(graph.pos, graph.edge_index)
         pushed = torch.linalg.vector_norm(acceleration, dim=1) > WAKE_ACCELERATION
-        seeds[real] |= ~at_rest(pos_seq, float(self.dt)) | pushed
+        moving = ~at_rest(pos_seq, float(self.dt))
+        seeds[real] |= moving | pushed
         hops = int(self.model.processor.num_steps)
-        awake = spread(seeds, graph.edge_index, graph.is_wall, hops)[real]
+        awake = spread(seeds, graph.edge_index, graph.is_wall, hops, QUORUM)[real]
         if not bool(awake.all()):
             woken = self.woken_by_walls(pos_seq[:, -1], walls, time)
             if woken is not None:

@@ -12,21 +12,22 @@ closed lid sank through it). Rigid-body engines meet the same problem by letting
   when no node of its graph (a particle or a wall's closest point within the cut-off) lies
   beneath it (:func:`supported`: nothing to rest on, as a bed packed in mid-air at a fill's
   start, which the network may not see fall), when it lies within the model's message-passing
-  reach of an awake particle (:func:`spread`: ``num_steps`` hops over the particle edges, what
-  a learned step can know), or within that reach of a wall that moves, is removed, or starts,
-  stops or reverses its motion during the step
+  reach of awake particles (:func:`spread`: ``num_steps`` hops over the particle edges, what a
+  learned step can know; a hop needs :data:`QUORUM` awake neighbours, as a bed mobilises
+  together while a lone particle still settling in its cage, a rattler, moves nothing), or
+  within that reach of a wall that moves, is removed, or starts, stops or reverses its motion
+  during the step
   (:meth:`~granular_pyg.simulator.LearnedSimulator.woken_by_walls`);
 * every other particle **sleeps**: its acceleration is exactly zero, so its velocity stays zero
   and its position stays the same to the bit.
 
 A bed released by its lid's removal wakes where the lid was, falls, and wakes the particles
 above it as it goes; a bed nothing disturbs never wakes. A flowing bed is all awake: sleeping
-changes nothing there. What it cannot do: a bed whose history holds a particle still settling
-(a rattler faster than :data:`REST_SPEED`) wakes around it, and where the network's error at
-rest (0.1-2 m/s^2 in the models measured) moves the woken particles, the wake spreads through
-the bed as without sleeping. The rule holds outside training passes (training learns every
-particle's acceleration), is the same in any frame (speeds and hop counts are invariant), and
-needs no weights, so it can be switched on for any trained model.
+changes nothing there. Without the quorum, a recorded bed whose history holds one rattler woke
+around it, and the network's error at rest (0.1-2 m/s^2 in the models measured) carried the
+wake through the bed and the bed through its lid. The rule holds outside training passes
+(training learns every particle's acceleration), is the same in any frame (speeds and hop
+counts are invariant), and needs no weights, so it can be switched on for any trained model.
 """
 
 from __future__ import annotations
@@ -36,10 +37,21 @@ import math
 import torch
 from torch import Tensor
 
-__all__ = ["REST_SPEED", "SUPPORT_ANGLE_DEG", "WAKE_ACCELERATION", "at_rest", "spread", "supported"]
+__all__ = [
+    "QUORUM",
+    "REST_SPEED",
+    "SUPPORT_ANGLE_DEG",
+    "WAKE_ACCELERATION",
+    "at_rest",
+    "spread",
+    "supported",
+]
 
 #: A particle whose history moves slower than this (m/s) at every step is at rest.
 REST_SPEED = 1e-3
+
+#: Awake neighbours that wake a particle at rest: more than one, so that a rattler does not.
+QUORUM = 2
 
 #: A particle the network gives more than this acceleration (m/s^2, half of standard gravity)
 #: is awake: one without support falls at g, while every shipped or candidate model gives a
@@ -54,17 +66,20 @@ def at_rest(pos_seq: Tensor, dt: float) -> Tensor:
     return (step < REST_SPEED * dt).all(dim=1)
 
 
-def spread(awake: Tensor, edge_index: Tensor, is_wall: Tensor, hops: int) -> Tensor:
-    """``[N + W]`` bool: the nodes within ``hops`` particle-to-particle edges of an ``awake``
-    one (``awake [N + W]`` bool, ``edge_index [2, E]`` source -> target, ``is_wall [N + W]``);
-    news does not pass through wall nodes."""
+def spread(
+    awake: Tensor, edge_index: Tensor, is_wall: Tensor, hops: int, quorum: int = 1
+) -> Tensor:
+    """``[N + W]`` bool: ``awake [N + W]`` grown ``hops`` times, each time by the nodes with at
+    least ``quorum`` awake neighbours over the particle-to-particle edges (``edge_index
+    [2, E]`` source -> target, ``is_wall [N + W]``); news does not pass through wall nodes.
+    With ``quorum`` 1: the nodes within ``hops`` edges of an awake one."""
     src, dst = edge_index
     between = ~(is_wall[src] | is_wall[dst])
     src, dst = src[between], dst[between]
     for _ in range(hops):
         reached = torch.zeros(awake.shape[0], dtype=torch.int32, device=awake.device)
         reached.index_add_(0, dst, awake[src].to(torch.int32))
-        grown = awake | (reached > 0)
+        grown = awake | (reached >= quorum)
         if torch.equal(grown, awake):
             break
         awake = grown

@@ -75,6 +75,21 @@ def test_spread_tiny_cases(moving, hops, want):
     assert spread(awake, edge_index, is_wall, hops)[:6].int().tolist() == want
 
 
+@pytest.mark.parametrize(
+    "awake, want",
+    [
+        ([2], [0, 0, 1, 0, 0, 0]),  # a lone mover wakes nothing
+        ([1, 3], [0, 1, 1, 1, 0, 0]),  # node 2 has two awake neighbours
+        ([0, 1], [1, 1, 0, 0, 0, 0]),  # node 2 has one
+    ],
+)
+def test_spread_with_a_quorum_of_two(awake, want):
+    edge_index, is_wall = _chain()
+    seeds = torch.zeros(7, dtype=torch.bool)
+    seeds[awake] = True
+    assert spread(seeds, edge_index, is_wall, 3, quorum=2)[:6].int().tolist() == want
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_spread_matches_hop_distances_on_random_graphs(seed):
     g = torch.Generator().manual_seed(seed)
@@ -110,6 +125,18 @@ def test_a_sleeping_bed_is_held_to_the_bit(processor):
     with torch.no_grad():
         acc = awake_model.predict_acceleration(start, walls, t, props=props)  # same weights
     assert 0 < float(acc.norm(dim=1).max()) < WAKE_ACCELERATION  # held for want of news
+
+
+def test_a_rattler_moves_nothing_but_itself():
+    sim = _quiet()
+    traj, seq, t, props = _bed()
+    walls = WallSet(held_still(traj, 0.1).scene)
+    rattler = int(torch.argmin((seq[:, -1] - seq[:, -1].mean(0)).norm(dim=1)))  # mid-bed
+    seq = seq.clone()
+    seq[rattler, -1, 0] += 0.011 * float(sim.dt)  # 11 mm/s in its last step
+    nxt = sim.step(seq, walls, t, props=props)
+    moved = (nxt - seq[:, -1]).norm(dim=1) > 0
+    assert moved.nonzero().flatten().tolist() == [rattler]
 
 
 def test_a_bed_at_rest_in_mid_air_wakes_and_falls():
