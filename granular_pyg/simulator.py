@@ -208,9 +208,11 @@ class LearnedSimulator(nn.Module):
             learns their average, a bed that sinks through a closed lid or creeps in a drum at
             rest.
         sleep: particles that sleep (:mod:`granular_pyg.sleep`) get exactly zero
-            acceleration outside training passes: those at rest in their history and beyond
-            the model's reach of anything that moves or changes. A bed at rest stays at rest
-            to the bit; a flowing one is unchanged. No weights: any model can switch it on.
+            acceleration outside training passes: those at rest in their history, resting on
+            something, pushed by the network less than g/2, and beyond the model's reach of
+            moving particles and of walls that move or change (:meth:`awake`). A bed at rest
+            stays at rest to the bit; a flowing one is unchanged. No weights: any model can
+            switch it on.
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
