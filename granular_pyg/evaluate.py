@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
+from granular_pyg.checkpoint.model import processor_name
 from granular_pyg.cli import command
 from granular_pyg.data import load_split
 from granular_pyg.errors import InputError, flag, whole_number
@@ -135,7 +136,7 @@ def evaluate(cfg: DictConfig) -> Path:
         ),
         "ckpt": str(cfg.ckpt),
         "seed": config.get("seed"),
-        "processor": config["model"].get("processor", {}).get("layer"),
+        "processor": processor_name(config["model"]),
         "data": {"root": root, "sample": sample},
         "command": _command(cfg),
         "threads": int(torch.get_num_threads()),

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
 from granular_pyg.config import compose
 from granular_pyg.errors import InputError
@@ -192,3 +193,19 @@ def test_rollout_command_writes_a_trajectory_of_the_trained_model(tmp_path, hopp
     assert again.num_frames == 6 + 3
     np.testing.assert_array_equal(again.positions, pred.positions)
     assert again.metadata["truth_file"].endswith("traj_0003.h5")  # the test split by default
+
+
+def test_processor_name_of_every_preset():
+    from granular_pyg.checkpoint.model import processor_name
+    from granular_pyg.config import compose
+
+    names = {}
+    for preset in ("bgnn", "gns", "attention", "equivariant"):
+        cfg = compose("train", [f"model/processor={preset}"])
+        names[preset] = processor_name(OmegaConf.to_container(cfg.model, resolve=True))
+    assert names == {
+        "bgnn": "interaction",
+        "gns": "interaction",
+        "attention": "attention",
+        "equivariant": "equivariant",
+    }

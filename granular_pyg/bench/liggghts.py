@@ -36,6 +36,7 @@ import matplotlib.pyplot as plt
 import torch
 
 from granular_pyg.bench.report import SuiteResult, Target, synchronize
+from granular_pyg.checkpoint.model import processor_name
 from granular_pyg.dem import DemRun
 from granular_pyg.dem.simulate import simulate
 from granular_pyg.errors import InputError
@@ -224,7 +225,7 @@ def run(
         scalars = evaluate_pair(truth, pred).scalars
         learned_sim = float(pred.times[-1] - pred.times[pred.metadata["initial_frames"] - 1])
         row = {
-            "simulator": f"learned ({model.get('normals')}, {model['processor']['layer']}, "
+            "simulator": f"learned ({model.get('normals')}, {processor_name(model)}, "
             f"latent {model['latent']}, k = {pred.metadata['frames_per_step']}"
             + (f", {device}" if device != "cpu" else "")
             + (", bf16" if precision == "bf16" else "")

@@ -31,6 +31,7 @@ import torch
 from granular_pyg import metrics
 from granular_pyg.bench.liggghts import rerun_liggghts
 from granular_pyg.bench.report import SuiteResult
+from granular_pyg.checkpoint.model import processor_name
 from granular_pyg.errors import InputError
 from granular_pyg.evaluation import evaluate_pair
 from granular_pyg.inference import load_simulator, rollout_trajectory
@@ -89,7 +90,7 @@ def _label(ckpt: str, config: dict, k: int) -> str:
     if str(ckpt).startswith(PREFIX):
         name = "pretrained/" + str(ckpt)[len(PREFIX) :]
     return (
-        f"{name}: {model['processor']['layer']}, latent "
+        f"{name}: {processor_name(model)}, latent "
         f"{model['latent']}, R {1e3 * model['radius']:g} mm, k {k}"
     )
 
@@ -139,7 +140,7 @@ def run(
             {
                 "setting": _label(ckpt, config, k),
                 "ckpt": ckpt,
-                "processor": model["processor"]["layer"],
+                "processor": processor_name(model),
                 "latent": model["latent"],
                 "radius_m": model["radius"],
                 "k": k,

@@ -17,6 +17,7 @@ import matplotlib.pyplot as plt
 import torch
 
 from granular_pyg.bench.report import SuiteResult, synchronize
+from granular_pyg.checkpoint.model import processor_name
 from granular_pyg.inference import load_simulator, rollout_trajectory
 from granular_pyg.io import read_trajectory
 from granular_pyg.samples import sample_files
@@ -52,7 +53,7 @@ def run(
             {
                 "ckpt": ckpt,
                 "device": torch.cuda.get_device_name(0) if device.startswith("cuda") else "cpu",
-                "processor": model["processor"]["layer"],
+                "processor": processor_name(model),
                 "latent": model["latent"],
                 "k": pred.metadata["frames_per_step"],
                 "steps": steps,

@@ -26,6 +26,7 @@ __all__ = [
     "check_model_config",
     "load_simulator",
     "load_weights",
+    "processor_name",
     "whole_multiple",
 ]
 
@@ -39,6 +40,16 @@ MODEL_TARGETS = frozenset(
         "granular_pyg.nn.horizontal_equivariant.HorizontalEquivariantProcessor",
     }
 )
+
+
+def processor_name(model: dict) -> str:
+    """A saved model config's processor, for tables: its message-passing layer (``interaction``,
+    ``attention``), or ``equivariant`` for the equivariant processor (which has no layer key)."""
+    processor = model.get("processor") or {}
+    if "layer" in processor:
+        return str(processor["layer"])
+    target = str(processor.get("_target_", ""))
+    return "equivariant" if target.endswith("EquivariantProcessor") else target.rsplit(".", 1)[-1]
 
 
 def check_model_config(model: dict, source: str) -> None:
