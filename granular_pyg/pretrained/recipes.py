@@ -14,6 +14,8 @@ __all__ = ["RECIPES"]
 RECIPES = {
     "hopper": "general_hopper",  # 9,100 steps on the wedge families
     "drum": "drum_families",  # from general_drum's 3,000-step weights, 8,400 more steps
-    "fast_hopper": "fast_hopper",  # its 21,500-step checkpoint
-    "fast_drum": "fast_drum",  # its 2,800-step checkpoint
+    # equivariant; then fine-tuned with offset noise (the recipe's comment has the commands)
+    "fast_hopper": "equivariant_hopper",
+    # equivariant; then fine-tuned with offset and drift noise and the reach mask (likewise)
+    "fast_drum": "equivariant_drum",
 }
