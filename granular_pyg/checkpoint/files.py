@@ -36,8 +36,8 @@ PREFIX = "pretrained:"
 PRETRAINED = {
     "hopper": "hopper_v3.ckpt",
     "drum": "drum_v3.ckpt",
-    "fast_hopper": "fast_hopper_v3.ckpt",  # latent 32, k = 16: the speed model
-    "fast_drum": "fast_drum_v3.ckpt",  # latent 32, k = 8: the drum's speed model
+    "fast_hopper": "fast_hopper_v3.ckpt",  # equivariant, latent 32, k = 16: the speed model
+    "fast_drum": "fast_drum_v3.ckpt",  # equivariant, latent 32, k = 8: the drum's speed model
 }
 
 #: The folder of the shipped checkpoints (inside the installed package).
