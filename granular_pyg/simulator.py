@@ -56,7 +56,7 @@ from torch import nn
 from torch_geometric.data import Batch, Data
 
 from granular_pyg.errors import InputError, NonFiniteError, check_coordinates_fit, check_tensor
-from granular_pyg.geometry import canonical_normals, horizontally_isotropic
+from granular_pyg.geometry import canonical_frame, canonical_normals, horizontally_isotropic
 from granular_pyg.nn import (
     EncodeProcessDecode,
     HorizontalEquivariantNetwork,
@@ -213,6 +213,13 @@ class LearnedSimulator(nn.Module):
             moving particles and of walls that move or change (:meth:`awake`). A bed at rest
             stays at rest to the bit; a flowing one is unchanged. No weights: any model can
             switch it on.
+        canonical_frame: outside training, the network sees the scene in the scene's own
+            horizontal frame (:func:`~granular_pyg.geometry.canonical_frame`: read off the
+            walls' surface, their turning axis and, for ties, the particles at the rollout's
+            start) and its prediction is turned back. A model that is not equivariant then
+            gives the same flow for the scene turned about gravity, mirrored or re-meshed, as
+            long as the frame is decided (not for an axisymmetric cone with a centred bed).
+            No weights: any model can switch it on.
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
@@ -238,6 +245,7 @@ class LearnedSimulator(nn.Module):
         wall_nodes: str = "triangle",
         walls_over_step: bool = False,
         sleep: bool = False,
+        canonical_frame: bool = False,
     ) -> None:
         super().__init__()
         if history < 1:
@@ -272,6 +280,11 @@ class LearnedSimulator(nn.Module):
         if not isinstance(sleep, bool):
             raise InputError(f"model.sleep: expected true or false, got {sleep!r}")
         self.sleep = sleep
+        if not isinstance(canonical_frame, bool):
+            raise InputError(
+                f"model.canonical_frame: expected true or false, got {canonical_frame!r}"
+            )
+        self.canonical_frame = canonical_frame
         self.radius_feature, self.material_features = radius_feature, names
         self.contact_feature = contact_feature
         self.radius_graph = RadiusGraph(radius, graph_backend, max_num_neighbors)
@@ -706,6 +719,17 @@ class LearnedSimulator(nn.Module):
             return None
         return walls.near(points, self.reach, time, changed).to(points.device)
 
+    def scene_frame(self, walls: WallSet, points: torch.Tensor) -> torch.Tensor | None:
+        """The frame ``[3, 3]`` (float64) the network sees ``walls`` in, with ``points [N, 3]``
+        (m, NaN rows ignored) to break the walls' ties: the scene's own
+        (:func:`~granular_pyg.geometry.canonical_frame`) with ``canonical_frame``, else None
+        (the world frame)."""
+        if not self.canonical_frame:
+            return None
+        points = points.detach().double().cpu()
+        points = points[torch.isfinite(points).all(dim=1)].numpy()
+        return torch.from_numpy(canonical_frame(walls.walls, points))
+
     def _network_output(self, graph: Data | Batch) -> torch.Tensor:
         """The network's output rows of the real particles: ``[N, 3]`` normalised
         acceleration."""
@@ -759,6 +783,7 @@ class LearnedSimulator(nn.Module):
         neighbours: NeighbourList | None = None,
         guard: WallGuard | None = None,
         props: ParticleProps | None = None,
+        frame: torch.Tensor | None = None,
     ) -> torch.Tensor:
         """Advance one learned step (``dt``).
 
@@ -775,6 +800,8 @@ class LearnedSimulator(nn.Module):
             guard: a :class:`WallGuard` over the ``N`` particles, or None.
             props: :class:`ParticleProps` of the ``N`` particles (all rows, sliced here like
                 ``pos_seq``); needed by a model with radius or material inputs.
+            frame: the ``[3, 3]`` frame the network sees the scene in (:meth:`rollout` fixes
+                :meth:`scene_frame` at its start); None: :meth:`scene_frame` of this state.
 
         Returns:
             ``[N, 3]`` next positions in the dtype of ``pos_seq``.
@@ -803,7 +830,9 @@ class LearnedSimulator(nn.Module):
         check_coordinates_fit("pos_seq", seq, self.radius_graph.radius)
         ids = present.nonzero().squeeze(1) if neighbours is not None else None
         sub = props[present] if props is not None else None
-        acc = self.predict_acceleration(seq, walls, time, neighbours, ids, props=sub).double()
+        if frame is None:
+            frame = self.scene_frame(walls, seq[:, -1])
+        acc = self.predict_acceleration(seq, walls, time, neighbours, ids, sub, frame).double()
         finite = torch.isfinite(acc).all(dim=1)
         if not bool(finite.all()):
             bad = present.nonzero()[:, 0][~finite].tolist()
@@ -879,10 +908,11 @@ class LearnedSimulator(nn.Module):
         rg = self.radius_graph
         neighbours = None if skin is None else NeighbourList(rg.radius, skin, rg.backend)
         bar = tqdm(range(steps), desc="rollout", unit="step", disable=not show_progress(progress))
+        frame = self.scene_frame(walls, pos_seq[:, -1])  # fixed: the start decides any tie
         for s in bar:
             t = time + s * dt
             try:
-                nxt = self.step(seq, walls, t, None, neighbours, guard, props)
+                nxt = self.step(seq, walls, t, None, neighbours, guard, props, frame)
                 stop = bool(on_step(s, t, seq, nxt)) if on_step is not None else False
             except NonFiniteError as exc:
                 exc.step = s

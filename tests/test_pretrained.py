@@ -78,6 +78,15 @@ def test_export_keeps_config_and_weights_only(tmp_path):
     assert slept["config"]["data"] == slim["config"]["data"]
     assert all(torch.equal(slept["state_dict"][k], v) for k, v in slim["state_dict"].items())
     assert load_simulator(again)[0].sleep and not load_simulator(out)[0].sleep
+    # the scene's own frame and a node per surface patch: rules without weights, likewise
+    framed = export(
+        out, "drum", "drum", canonical_frame=True, wall_nodes="patch", out=tmp_path / "f.ckpt"
+    )
+    turned, _ = load_simulator(framed)
+    assert turned.canonical_frame and turned.wall_nodes.per == "patch"
+    assert not load_simulator(out)[0].canonical_frame
+    with pytest.raises(InputError, match="--wall-nodes"):
+        export(out, "drum", "drum", wall_nodes="cell", out=tmp_path / "g.ckpt")
 
 
 @pytest.mark.parametrize("name", sorted(SAMPLE))

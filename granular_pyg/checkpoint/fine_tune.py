@@ -38,13 +38,14 @@ __all__ = [
 INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
 #: Model keys a fine-tuning run may change: how the graph is searched, how a step sees the
 #: walls (an older model can learn to see a lid removed or a drum started during the step),
-#: sleeping (a rule without weights) and the equivariant processor's wall sum (its weights
-#: start at zero: the initial model exactly).
+#: sleeping and the scene's own frame (rules without weights) and the equivariant
+#: processor's wall sum (its weights start at zero: the initial model exactly).
 HONOURED_MODEL_KEYS = (
     "graph_backend",
     "max_num_neighbors",
     "walls_over_step",
     "sleep",
+    "canonical_frame",
     "processor.wall_sum",
 )
 

@@ -34,6 +34,7 @@ _ADDED = {
     ("model", "wall_nodes"): "triangle",  # the paper's wall nodes, before surface patches
     ("model", "walls_over_step"): False,  # the walls at a step's start
     ("model", "sleep"): False,  # every particle's acceleration as the network gives it
+    ("model", "canonical_frame"): False,  # the network sees the world frame
     ("data", "augment"): False,  # windows in the recorded frame, before turns and mirrors
 }
 

@@ -84,6 +84,8 @@ def _evaluate(ckpt: Path, scored: list[Path], out: Path, threads: int) -> dict:
             ]
         )
     rows = json.loads(summary.read_text())["trajectories"]
+    # None: a metric that does not apply (a clogged truth has no discharge rate to miss)
+    rows = [{k: np.nan if v is None else v for k, v in r.items()} for r in rows]
     point = {key: float(np.nanmean([r[key] for r in rows])) for key in KEPT}
     errors = [abs(r["discharge_rate_rel_error"]) for r in rows]
     point["discharge_rate_abs_error_mean"] = float(np.nanmean(errors))

@@ -1,6 +1,7 @@
 """Geometry core: point-triangle distances, wall normals, the wall index (culling), segment
-crossings and per-particle selection over pair lists."""
+crossings, per-particle selection over pair lists and the scene's own horizontal frame."""
 
+from granular_pyg.geometry.canonical_frame import canonical_frame
 from granular_pyg.geometry.closest_point import (
     closest_point_on_segments,
     closest_point_on_triangles,
@@ -24,6 +25,7 @@ __all__ = [
     "WallIndex",
     "WallPairs",
     "argmin_per_group",
+    "canonical_frame",
     "canonical_normals",
     "closest_point_on_segments",
     "closest_point_on_triangles",

@@ -44,6 +44,8 @@ def export(
     out: str | Path | None = None,
     overwrite: bool = False,
     sleep: bool | None = None,
+    canonical_frame: bool | None = None,
+    wall_nodes: str | None = None,
 ) -> Path:
     """Write the slim copy of ``ckpt`` as the pretrained model ``name``; returns its path.
 
@@ -59,6 +61,10 @@ def export(
         sleep: set ``model.sleep`` (:mod:`granular_pyg.sleep`, a rule without weights) in the
             shipped config; None keeps the checkpoint's. A shipped model given as ``ckpt``
             keeps its record (source, steps, training data, note unless a new one is given).
+        canonical_frame: set ``model.canonical_frame`` (the scene's own frame, no weights)
+            likewise; None keeps the checkpoint's.
+        wall_nodes: set ``model.wall_nodes`` (``patch``: a node per surface patch, the same
+            for any triangulation; ``triangle``) likewise; None keeps the checkpoint's.
 
     Raises:
         InputError: an unknown name, no output named, an unsafe, unreadable or non-training
@@ -84,8 +90,12 @@ def export(
         target, [source], overwrite, option="--out", overwrite_option="--overwrite"
     )
     config = migrate_config(full["config"])  # today's keys: an older model ships as it was
-    if sleep is not None:
-        config["model"] = dict(config["model"]) | {"sleep": bool(sleep)}
+    if wall_nodes not in (None, "patch", "triangle"):
+        raise InputError(f"--wall-nodes: expected patch or triangle, got {wall_nodes!r}")
+    rules = {"sleep": sleep, "canonical_frame": canonical_frame, "wall_nodes": wall_nodes}
+    for key, value in rules.items():
+        if value is not None:
+            config["model"] = dict(config["model"]) | {key: value}
     built = build_model(config["model"], f"ckpt: {path}", full["state_dict"])
     load_weights(built, full, f"ckpt: {path}")
     record = {
@@ -129,8 +139,21 @@ def main(argv: list[str] | None = None) -> None:
         default=None,
         help="set model.sleep in the shipped config (default: the checkpoint's)",
     )
+    parser.add_argument(
+        "--canonical-frame",
+        choices=["true", "false"],
+        default=None,
+        help="set model.canonical_frame in the shipped config (default: the checkpoint's)",
+    )
+    parser.add_argument(
+        "--wall-nodes",
+        choices=["patch", "triangle"],
+        default=None,
+        help="set model.wall_nodes in the shipped config (default: the checkpoint's)",
+    )
     args = parser.parse_args(argv)
     sleep = None if args.sleep is None else args.sleep == "true"
+    canonical = None if args.canonical_frame is None else args.canonical_frame == "true"
     out = export(
         args.ckpt,
         args.name,
@@ -140,6 +163,8 @@ def main(argv: list[str] | None = None) -> None:
         args.out,
         args.overwrite,
         sleep,
+        canonical,
+        args.wall_nodes,
     )
     print(f"pretrained model: {out} ({out.stat().st_size / 1e3:.0f} kB)")
 

@@ -97,7 +97,8 @@ class _Collate:
     are built. The noise of a window is seeded by ``(seed, epoch, window)``, so it does not
     depend on workers or on resuming. With ``augment`` each window is seen in a random frame
     turned about gravity and mirrored half the time (``window.frame``, seeded the same way):
-    features and target in that frame, the graph unchanged.
+    features and target in that frame, the graph unchanged. A model with ``canonical_frame``
+    sees each window in its scene's own frame instead, as its rollouts do.
     """
 
     def __init__(
@@ -138,7 +139,7 @@ class _Collate:
                 )
                 data = noise(Data(pos_seq=pos_seq, target_pos=target, walls=w.walls, time=w.time))
                 pos_seq, target = data.pos_seq, data.target_pos
-            w.frame = None
+            w.frame = self.sim.scene_frame(w.walls, pos_seq[:, -1])  # None: the world's
             if self.augment:
                 key = zlib.crc32(f"frame/{self.seed}/{w.epoch}/{w.index}".encode())
                 w.frame = random_horizontal_frame(torch.Generator().manual_seed(key))
@@ -292,6 +293,11 @@ class TrajectoryDataModule(L.LightningDataModule):
         self.prepare(objective)
         if sim.history != self.history:
             raise InputError(f"model.history ({sim.history}) != data.history ({self.history})")
+        if self.augment and sim.canonical_frame:
+            raise InputError(
+                "data.augment: a model with model.canonical_frame sees every scene in the "
+                "scene's own frame, turned copies alike; set data.augment=false"
+            )
         sim.set_normalization(
             self.stats.vel_mean, self.stats.vel_std, self.stats.acc_mean, self.stats.acc_std
         )
