@@ -340,6 +340,10 @@ def test_fine_tuning_refuses_overrides_it_cannot_honour():
         with_initial_model(cfg, ["data.noise_std=0.1"])
     out, _ = with_initial_model(cfg, ["model.latent=64", "model.graph_backend=scipy"])
     assert out.model.latent == 64 and out.model.graph_backend == "scipy"
+    # rules without weights: how walls become nodes, the scene's own frame
+    cfg.model = {"wall_nodes": "triangle", "canonical_frame": True}
+    out, _ = with_initial_model(cfg, ["model.wall_nodes=triangle", "model.canonical_frame=true"])
+    assert out.model.wall_nodes == "triangle" and out.model.canonical_frame is True
 
 
 def test_negative_or_nan_noise_is_refused():

@@ -37,13 +37,15 @@ __all__ = [
 #: Data settings a fine-tuning run takes over from the initial model's training run.
 INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
 #: Model keys a fine-tuning run may change: how the graph is searched, how a step sees the
-#: walls (an older model can learn to see a lid removed or a drum started during the step),
+#: walls (an older model can learn to see a lid removed or a drum started during the step, or
+#: a wall node per surface patch instead of per triangle),
 #: sleeping and the scene's own frame (rules without weights) and the equivariant
 #: processor's wall sum (its weights start at zero: the initial model exactly).
 HONOURED_MODEL_KEYS = (
     "graph_backend",
     "max_num_neighbors",
     "walls_over_step",
+    "wall_nodes",
     "sleep",
     "canonical_frame",
     "processor.wall_sum",
