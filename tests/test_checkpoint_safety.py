@@ -204,3 +204,5 @@ def test_fine_tuning_a_shipped_model_writes_a_checkpoint_that_loads_weights_only
     ckpt = torch.load(tmp_path / "checkpoints" / "last.ckpt", weights_only=True)
     assert ckpt["model_card"]["fine_tuned_from"] == "pretrained:hopper"
     assert ckpt["config"]["model"]["latent"] == hostile.shipped()["config"]["model"]["latent"]
+    # the shipped hopper sees each scene in its own frame: random frames are switched off
+    assert ckpt["config"]["model"]["canonical_frame"] and not ckpt["config"]["data"]["augment"]

@@ -131,7 +131,8 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
         ``(config, checkpoint)``: a copy of ``cfg`` whose ``model`` section is the
         checkpoint's (with its learned step ``dt``, s), whose data history and noise follow the
         checkpoint's run, and whose ``data.frames_per_step`` is ``dt`` over the new data's frame
-        spacing; the loaded checkpoint dict.
+        spacing (``data.augment`` false for a model that sees each scene in its own frame:
+        random frames would be undone); the loaded checkpoint dict.
 
     Args:
         cfg: the composed training config, with ``init``.
@@ -165,6 +166,8 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
                 f"data's frame spacing {frame_dt:g} s; record frames every {dt:g} s / k"
             )
         cfg.data.frames_per_step = k
+        if cfg.model.get("canonical_frame"):  # it sees each window in its scene's own frame
+            cfg.data.augment = False
         if cfg.model.processor.get("wall_sum"):
             if not str(cfg.model.processor.get("_target_", "")).endswith("EquivariantProcessor"):
                 raise InputError(
