@@ -213,13 +213,13 @@ class LearnedSimulator(nn.Module):
             moving particles and of walls that move or change (:meth:`awake`). A bed at rest
             stays at rest to the bit; a flowing one is unchanged. No weights: any model can
             switch it on.
-        canonical_frame: outside training, the network sees the scene in the scene's own
-            horizontal frame (:func:`~granular_pyg.geometry.canonical_frame`: read off the
-            walls' surface, their turning axis and, for ties, the particles at the rollout's
-            start) and its prediction is turned back. A model that is not equivariant then
-            gives the same flow for the scene turned about gravity, mirrored or re-meshed, as
-            long as the frame is decided (not for an axisymmetric cone with a centred bed).
-            No weights: any model can switch it on.
+        canonical_frame: the network sees each scene in the scene's own horizontal frame
+            (:func:`~granular_pyg.geometry.canonical_frame`: read off the walls' surface, their
+            turning axis and, for ties, the particles: at a rollout's start, of each training
+            window) and its prediction is turned back. A model that is not equivariant then
+            gives the same flow for the scene turned about gravity or mirrored (re-meshed too,
+            with ``wall_nodes="patch"``), as long as the frame is decided (not for an
+            axisymmetric cone with a centred bed). No weights: any model can switch it on.
 
     With ``radius_feature``, ``contact_feature`` or ``material_features`` the graph needs a
     :class:`ParticleProps` (``props`` of :meth:`build_graph`, :meth:`step`,
