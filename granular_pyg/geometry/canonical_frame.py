@@ -162,7 +162,7 @@ def canonical_frame(walls: list[Wall], points: np.ndarray | None = None) -> np.n
     Returns:
         ``Q`` such that the scene turned by ``g`` has the frame ``Q g^T``.
     """
-    if not walls:
+    if not walls or not len(_triangles(walls)[1]):  # no surface to read a frame off
         return np.eye(3)
     scene = _Scene(walls, points)
     omega = _turning_axis(walls)

@@ -97,6 +97,17 @@ def test_an_axisymmetric_cone_falls_to_the_bed_and_a_silo_to_its_outlet():
     assert abs(q_silo[0, 0]) == pytest.approx(1.0)
 
 
+def test_no_surface_or_a_vertical_axis_decides_nothing_by_itself():
+    """Walls of zero area keep the world frame; a wall turning about the vertical (a mixer) is
+    not a drum: the static rules decide, and a flat floor alone decides nothing."""
+    flat = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    assert np.array_equal(canonical_frame([Wall("line", flat, np.array([[0, 1, 2]]))]), np.eye(3))
+    square = np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0]])
+    spin = WallMotion(kind="rotation", axis=(0.0, 0.0, 1.0), omega=3.0)
+    floor = Wall("floor", square, np.array([[0, 1, 2], [0, 2, 3]]), spin)
+    assert np.array_equal(canonical_frame([floor]), np.eye(3))
+
+
 def test_surface_moments_match_dense_sampling():
     """The exact integrals of s, s^2, s^3 over random triangles against the midpoint rule on
     each triangle split 4^6 times (brute force)."""
