@@ -112,6 +112,8 @@ class _Scene:
         return (n_h * weight[:, None]).T @ n_h
 
     def point_spread(self) -> np.ndarray | None:
+        """The bed's horizontal second moment ``[2, 2]`` (m^2) about the walls' centre, or
+        None without particles."""
         if self.points is None:
             return None
         return self.points.T @ self.points / len(self.points)
