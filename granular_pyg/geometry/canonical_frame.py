@@ -90,8 +90,10 @@ def _main_direction(tensor: np.ndarray) -> np.ndarray | None:
 class _Scene:
     """The integrals the rules read, about the walls' horizontal area centre."""
 
-    def __init__(self, walls: list[Wall], points: np.ndarray | None) -> None:
-        tri, self.area, self.normal = _triangles(walls)
+    def __init__(
+        self, triangles: tuple[np.ndarray, np.ndarray, np.ndarray], points: np.ndarray | None
+    ) -> None:
+        tri, self.area, self.normal = triangles  # _triangles' vertices, areas, normals
         total = float(self.area.sum())
         centre = np.array([_surface_moment(tri[..., i], self.area, 1) for i in (0, 1)]) / total
         self.rel = tri[..., :2] - centre  # [T, 3, 2] horizontal, about the centre
@@ -164,9 +166,10 @@ def canonical_frame(walls: list[Wall], points: np.ndarray | None = None) -> np.n
     Returns:
         ``Q`` such that the scene turned by ``g`` has the frame ``Q g^T``.
     """
-    if not walls or not len(_triangles(walls)[1]):  # no surface to read a frame off
+    triangles = _triangles(walls) if walls else None
+    if triangles is None or not len(triangles[1]):  # no surface to read a frame off
         return np.eye(3)
-    scene = _Scene(walls, points)
+    scene = _Scene(triangles, points)
     omega = _turning_axis(walls)
     if omega is not None:
         # e2 along the axis, its sense from the walls or the bed (omega itself is a
