@@ -16,6 +16,11 @@ the drum's axis is y.
          \ cone /
           \____/        <- z = 0: orifice, closed by the lid
 
+* ``pyramid_hopper.stl``: a pyramidal hopper whose four plane walls converge both ways onto a
+  square outlet (20 mm a side, centred at (4 mm, 0) at z = 0), so that its walls stand at 57,
+  61 and 66 deg to the horizontal; they rise to a square bin (64 mm a side, centred on the axis)
+  at z = 0.04, open at the top (z = 0.1 m). ``pyramid_lid.stl``: the square that closes the
+  outlet.
 * ``silo.stl``: a flat-bottomed cylindrical silo (radius 35 mm, height 0.1 m, open top) whose
   floor has a circular outlet of radius 8 mm centred 15 mm off the axis, at (0.015, 0, 0).
   ``silo_lid.stl``: the disc that closes the outlet.
@@ -145,6 +150,53 @@ def cone_hopper(
     return {"cone_hopper": hopper.arrays(), "cone_lid": lid.arrays()}
 
 
+def _square(cx: float, half: float, z: float, per_side: int) -> list:
+    """``4 per_side`` points round a horizontal square of half-width ``half`` centred at
+    ``(cx, 0)``, counter-clockwise seen from +z, starting at its ``(-, -)`` corner."""
+    corners = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+    points = []
+    for (ax, ay), (bx, by) in zip(corners, corners[1:] + corners[:1], strict=True):
+        for k in range(per_side):
+            f = k / per_side
+            points.append((cx + half * (ax + f * (bx - ax)), half * (ay + f * (by - ay)), z))
+    return points
+
+
+def pyramid_hopper(
+    outlet_half: float = 0.01,
+    outlet_offset: float = 0.004,
+    bin_half: float = 0.032,
+    bin_bottom: float = 0.04,
+    height: float = 0.1,
+    per_side: int = 4,
+    element: float = 0.008,
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The pyramidal hopper (``pyramid_hopper``) and its square outlet's lid (``pyramid_lid``);
+    normals point out of the particle space. Sizes in m.
+
+    Rings of ``4 per_side`` points join the outlet's square (centred at ``(outlet_offset, 0)``)
+    to the bin's (centred on the axis) point for point, so each wall is a plane trapezoid of
+    quads; the bin's vertical walls carry the same rings up to ``height``.
+    """
+    hopper = _Builder()
+    bottom = np.array(_square(outlet_offset, outlet_half, 0.0, per_side))
+    top = np.array(_square(0.0, bin_half, bin_bottom, per_side))
+    slant = float(np.max(np.linalg.norm(top - bottom, axis=1)))
+    n_slope = math.ceil(slant / element)
+    n_bin = math.ceil((height - bin_bottom) / element)
+    rows = [hopper.add(bottom + (top - bottom) * i / n_slope) for i in range(n_slope + 1)]
+    for i in range(1, n_bin + 1):
+        rise = np.array([0.0, 0.0, (height - bin_bottom) * i / n_bin])
+        rows.append(hopper.add(top + rise))
+    for lower, upper in itertools.pairwise(rows):
+        hopper.strip(lower, upper)  # counter-clockwise rings: normals point outwards
+    lid = _Builder()
+    ring = lid.add(bottom)
+    centre = lid.add([(outlet_offset, 0.0, 0.0)])[0]
+    lid.fan(centre, ring[::-1])  # normal -z: out of the particle space
+    return {"pyramid_hopper": hopper.arrays(), "pyramid_lid": lid.arrays()}
+
+
 def silo(
     radius: float = 0.035,
     height: float = 0.1,
@@ -245,7 +297,7 @@ def lifter_drum(
 
 def example_meshes() -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Every example mesh by file stem: ``(vertices [V, 3] float64 (m), faces [F, 3] int64)``."""
-    return cone_hopper() | silo() | lifter_drum()
+    return cone_hopper() | pyramid_hopper() | silo() | lifter_drum()
 
 
 def main(argv: Sequence[str] | None = None) -> list[Path]:

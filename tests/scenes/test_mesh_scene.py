@@ -50,7 +50,7 @@ from granular_pyg.scenes.mesh_scene import MESH_DIR, load_stl
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLES = REPO / "granular_pyg" / "samples"
-CONFIGS = ("mesh_cone", "mesh_silo", "mesh_lifter_drum")
+CONFIGS = ("mesh_cone", "mesh_pyramid", "mesh_silo", "mesh_lifter_drum")
 
 
 def _build(config: str, *overrides: str, **changes) -> Scene:
@@ -429,13 +429,15 @@ def test_example_meshes_are_well_formed():
     for name, (v, f) in meshes.items():
         check_wall_for_liggghts(Wall(name, v, f))
     # The lids close the outlets exactly: their rims are the outlets' rims.
-    for body, lid in (("cone_hopper", "cone_lid"), ("silo", "silo_lid")):
+    lids = {"cone_hopper": "cone_lid", "pyramid_hopper": "pyramid_lid", "silo": "silo_lid"}
+    for body, lid in lids.items():
         rim = {
             tuple(p)
             for p in meshes[lid][0]
             if np.hypot(*(p[:2] - meshes[lid][0].mean(0)[:2])) > 1e-3
         }
-        assert len(rim) == examples.SECTIONS and rim <= {tuple(p) for p in meshes[body][0]}
+        # Every lid vertex but its centre lies on the outlet's rim.
+        assert len(rim) == len(meshes[lid][0]) - 1 and rim <= {tuple(p) for p in meshes[body][0]}
         assert (
             is_closed_surface(
                 np.concatenate([meshes[body][0][meshes[body][1]], meshes[lid][0][meshes[lid][1]]])
@@ -641,3 +643,22 @@ def test_full_size_example_scene_passes_the_physics_sanity_checks(config):
             [traj.positions[:, i, 2][traj.present[:, i]][-1] for i in np.flatnonzero(gone)]
         )
         assert (last_seen < scene.outflow_z + 0.05).all()  # they left through the bottom
+
+
+def test_pyramid_hopper_walls_converge_both_ways_onto_its_square_outlet():
+    vertices, faces = examples.pyramid_hopper()["pyramid_hopper"]
+    tri = vertices[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    inclined = np.abs(normal[:, 2]) > 1e-9
+    # Wall angles to the horizontal: 57.0 (-x), 65.8 (+x), 61.2 deg (+-y), from the sizes.
+    angles = np.round(np.degrees(np.arccos(-normal[inclined, 2])), 1)
+    np.testing.assert_allclose(np.unique(angles), [57.0, 61.2, 65.8], atol=0.05)
+    # Inclined walls face all four horizontal directions: the outlet converges both ways.
+    facing = np.unique(np.sign(np.round(normal[inclined, :2], 6)), axis=0)
+    assert {tuple(f) for f in facing} == {(-1, 0), (1, 0), (0, -1), (0, 1)}
+    # Normals point out of the particle space (away from the vertical through the outlet).
+    centre = tri.mean(1)
+    assert np.all(((centre[:, :2] - [0.004, 0.0]) * normal[:, :2]).sum(1) > 0)
+    lid_v, _ = examples.pyramid_hopper()["pyramid_lid"]
+    np.testing.assert_allclose(np.ptp(lid_v[:, :2], axis=0), [0.02, 0.02], atol=1e-12)
