@@ -214,6 +214,10 @@ def discharge_rate(
     rollout that stops with part of its bed inside never reaches ``window[1]``, and its fit
     then runs on to its last frame, so the stall lowers its rate instead of being cut off.
 
+    With fewer than three frames in the window (a rollout whose learned steps are coarse
+    against a fast drain), the rate is the mean one between the window's bounds, their
+    crossing times read off the curve joined linearly between frames.
+
     Args:
         times: ``[T]`` (s).
         positions: ``[T, N, 3]`` (m), NaN once gone.
@@ -228,7 +232,7 @@ def discharge_rate(
         ``(rate kg/s, (t_start, t_end) s)`` of the fit.
 
     Raises:
-        InputError: an empty bed, or fewer than three frames in the window (too little
+        InputError: an empty bed, or a window not crossed after ``first_frame`` (too little
             discharge).
     """
     positions = _check_positions("positions", positions)
@@ -242,14 +246,38 @@ def discharge_rate(
     ended = np.flatnonzero(discharged >= hi)
     first = max(int(started[0]), int(first_frame)) if started.size else len(times)
     last = int(ended[0]) if ended.size else len(times) - 1
-    if last - first + 1 < 3:
-        raise InputError(
-            "positions: too little discharge for a flow rate (fewer than 3 frames between "
-            f"{window[0]:.0%} and {window[1]:.0%} of the initial bed's mass); roll out longer"
-        )
-    t, m = times[first : last + 1], discharged[first : last + 1]
-    rate = float(np.polyfit(t, m, 1)[0])
-    return rate, (float(t[0]), float(t[-1]))
+    if last - first + 1 >= 3:
+        t, m = times[first : last + 1], discharged[first : last + 1]
+        return float(np.polyfit(t, m, 1)[0]), (float(t[0]), float(t[-1]))
+    # Too few frames for a fit (a bed that drains within a few coarse frames, such as a
+    # learned rollout's): the mean rate between the window's bounds, crossed on the curve
+    # joined linearly between frames; a fast drain must not drop out as "no rate".
+    start = int(first_frame)
+    if bed > 0 and start < len(times) - 1 and discharged[start] < hi and discharged[-1] > lo:
+        t0, m0 = _crossing(times, discharged, lo, start)
+        t1, m1 = _crossing(times, discharged, hi, start)
+        if t1 > t0:
+            return float((m1 - m0) / (t1 - t0)), (t0, t1)
+    raise InputError(
+        "positions: too little discharge for a flow rate (fewer than 3 frames between "
+        f"{window[0]:.0%} and {window[1]:.0%} of the initial bed's mass); roll out longer"
+    )
+
+
+def _crossing(
+    times: np.ndarray, curve: np.ndarray, level: float, start: int
+) -> tuple[float, float]:
+    """``(time s, mass kg)`` where the non-decreasing ``curve [T]``, joined linearly between
+    frames from frame ``start`` on, first reaches ``level``: its first point when it starts
+    above, its last point when it never reaches it."""
+    reached = np.flatnonzero(curve[start:] >= level)
+    if not reached.size:
+        return float(times[-1]), float(curve[-1])
+    j = start + int(reached[0])
+    if j == start:
+        return float(times[j]), float(curve[j])
+    f = (level - curve[j - 1]) / (curve[j] - curve[j - 1])
+    return float(times[j - 1] + f * (times[j] - times[j - 1])), float(level)
 
 
 def time_to_empty(

@@ -180,3 +180,28 @@ def test_frames_before_first_frame_are_left_out_of_the_fit():
     assert t0 == times[50] and rate == pytest.approx(0.2, rel=0.05)
     with pytest.raises(InputError, match="too little discharge"):
         discharge_rate(times, pos, 0.0, mass, first_frame=100)
+
+
+def test_a_drain_within_a_few_coarse_frames_still_has_its_rate():
+    """A rollout whose learned steps are coarse against a fast drain (two frames inside the
+    20-80% window) gets the mean rate between the window's crossings, exact for a steady
+    drain; the same drain on fine frames gets it from the fit."""
+    n = 100
+    mass = np.full(n, 0.002)
+    leave = 0.1 + 0.001 * np.arange(n)  # 2 kg/s from t = 0.1 to 0.2 s
+    coarse = np.arange(0.0, 0.4, 0.05)
+    rate, (t0, t1) = discharge_rate(coarse, _leaving(coarse, leave), 0.0, mass)
+    # Brute force: the curve on the frames (0.002 kg at 0.1 s, 0.102 at 0.15, 0.2 at 0.2:
+    # two frames in the window, no fit), joined linearly through 20% and 80% (0.04, 0.16 kg).
+    curve = np.array([(leave <= t).sum() * 0.002 for t in coarse])
+    assert curve[2:5] == pytest.approx([0.002, 0.102, 0.2])
+    lo_t = np.interp(0.04, curve, coarse)
+    hi_t = np.interp(0.16, curve, coarse)
+    assert (t0, t1) == pytest.approx((lo_t, hi_t), abs=1e-12)
+    assert rate == pytest.approx(0.12 / (hi_t - lo_t), rel=1e-12)
+    fine = np.arange(0.0, 0.4, 0.001)
+    assert discharge_rate(fine, _leaving(fine, leave), 0.0, mass)[0] == pytest.approx(2.0, rel=0.01)
+    assert rate == pytest.approx(2.0, rel=0.02)
+    # A window passed entirely among the copied initial frames still measures nothing.
+    with pytest.raises(InputError, match="too little discharge"):
+        discharge_rate(coarse, _leaving(coarse, leave), 0.0, mass, first_frame=4)
