@@ -2,8 +2,8 @@ r"""The example equipment shipped as STL files: ``python -m granular_pyg.scenes.
 
 Writes, deterministically (same bytes on every run), binary STL files in metres into
 ``granular_pyg/scenes/meshes/`` (or ``--out``); the configs ``conf/scene/mesh_cone.yaml``,
-``mesh_silo.yaml`` and ``mesh_lifter_drum.yaml`` build scenes from them with
-:func:`~granular_pyg.scenes.make_mesh_scene`. Gravity is along -z for the hopper and the silo;
+``mesh_pyramid.yaml``, ``mesh_silo.yaml`` and ``mesh_lifter_drum.yaml`` build scenes from them
+with :func:`~granular_pyg.scenes.make_mesh_scene`. Gravity is along -z for the hoppers and the silo;
 the drum's axis is y.
 
 * ``cone_hopper.stl``: a conical hopper, 60 deg to the horizontal, from a circular orifice of
