@@ -646,7 +646,8 @@ def test_full_size_example_scene_passes_the_physics_sanity_checks(config):
 
 
 def test_pyramid_hopper_walls_converge_both_ways_onto_its_square_outlet():
-    vertices, faces = examples.pyramid_hopper()["pyramid_hopper"]
+    meshes = examples.pyramid_hopper()
+    vertices, faces = meshes["pyramid_hopper"]
     tri = vertices[faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
@@ -660,5 +661,5 @@ def test_pyramid_hopper_walls_converge_both_ways_onto_its_square_outlet():
     # Normals point out of the particle space (away from the vertical through the outlet).
     centre = tri.mean(1)
     assert np.all(((centre[:, :2] - [0.004, 0.0]) * normal[:, :2]).sum(1) > 0)
-    lid_v, _ = examples.pyramid_hopper()["pyramid_lid"]
+    lid_v, _ = meshes["pyramid_lid"]
     np.testing.assert_allclose(np.ptp(lid_v[:, :2], axis=0), [0.02, 0.02], atol=1e-12)
