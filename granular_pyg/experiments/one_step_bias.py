@@ -5,9 +5,11 @@ Every ``every``-th learned step of each trajectory (up to ``last_time``), the mo
 ground-truth window (no noise, no rollout) and predicts the acceleration of each particle
 present throughout; the table holds, per height band of the last position (m, relative to the
 outlet), the mean predicted and true vertical acceleration (m/s^2), their difference (the
-bias) and the RMS error. A model that is unbiased here but whose rollouts still drift off
-learns from LIGGGHTS's states only and errs on its own: the case for push-forward training
-(README, Reproducing the paper).
+bias) and the RMS error; with time bands, one row per (height band, time band), times counted
+from the moment the outlet opens (the scene's first wall removal, e.g. the lid), so that the
+bed's response to the opening stands apart from the steady discharge. A model that is unbiased
+here but whose rollouts still drift off learns from LIGGGHTS's states only and errs on its
+own: the case for push-forward training (README, Reproducing the paper).
 
 ``python -m granular_pyg.experiments.one_step_bias ckpt=<run>/checkpoints/last.ckpt
 'files=[data/paper_hopper/traj_0033.h5]'`` (config ``conf/one_step_bias.yaml``) prints the
@@ -17,6 +19,7 @@ table and writes ``table.md`` and ``results.json``.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -40,12 +43,26 @@ from granular_pyg.simulator import LearnedSimulator
 __all__ = ["format_table", "one_step_bias"]
 
 
+def _opening_time(traj: Trajectory, name: str) -> float:
+    """Time (s) the outlet of ``traj`` (called ``name`` in errors) opens: its first wall
+    removal."""
+    walls = traj.scene.walls if traj.scene is not None else []
+    removals = [w.removal_time for w in walls if w.removal_time is not None]
+    if not removals:
+        raise InputError(
+            f"times: {name} has no wall removed (no lid), so no time the outlet opens to count "
+            "from; leave it out, or drop times="
+        )
+    return float(min(removals))
+
+
 def one_step_bias(
     sim: LearnedSimulator,
     trajectories: list[Trajectory],
     bands: list[tuple[float, float]],
     every: int = 1,
     last_time: float | None = None,
+    times: list[tuple[float, float]] | None = None,
 ) -> list[dict]:
     """Mean predicted against true vertical acceleration per height band (see the module).
 
@@ -56,18 +73,30 @@ def one_step_bias(
             each band; a particle counts in every band that holds its last position.
         every: use every ``every``-th learned step's window.
         last_time: latest time (s) of a window's last position; None: to the end.
+        times: ``(t_low, t_high)`` (s after the outlet opens) of each time band, a window
+            counting in every band that holds the time of its last position; None: one band
+            over all times.
 
     Returns:
-        One row per band: ``z_low``, ``z_high``, ``count`` (particle-windows),
-        ``pred_az``, ``true_az``, ``bias`` (pred - true) and ``rmse`` (m/s^2; NaN if empty).
+        One row per (band, time band), heights outer: ``z_low``, ``z_high``, ``t_low``,
+        ``t_high`` (s; +-inf without time bands), ``count`` (particle-windows), ``pred_az``,
+        ``true_az``, ``bias`` (pred - true) and ``rmse`` (m/s^2; NaN if empty).
     """
     if not bands or any(not lo < hi for lo, hi in bands):
         raise InputError(f"bands: expected (z_low, z_high) pairs with z_low < z_high, got {bands}")
+    if times is not None and (not times or any(not lo < hi for lo, hi in times)):
+        raise InputError(
+            f"times: expected (t_low, t_high) pairs (s after the outlet opens) with t_low < "
+            f"t_high, got {times}"
+        )
     if every < 1:
         raise InputError(f"every: expected a positive stride, got {every}")
-    pred_in = [[] for _ in bands]
-    true_in = [[] for _ in bands]
-    for traj in trajectories:
+    spans = [(-math.inf, math.inf)] if times is None else list(times)
+    cells = [(b, s) for b in bands for s in spans]
+    pred_in = [[] for _ in cells]
+    true_in = [[] for _ in cells]
+    for i, traj in enumerate(trajectories):
+        opens = 0.0 if times is None else _opening_time(traj, f"trajectory {i}")
         k = frames_per_step(sim, traj.frame_dt)
         windows = WindowDataset([traj], sim.history, k)  # every frame's window; keep each k-th
         outlet_z = float(traj.scene.params.get("outlet_z", 0.0))
@@ -84,12 +113,15 @@ def one_step_bias(
                 true = sim.target_acceleration(seq, window.target_pos).double()
             true = (true * sim.acc_std.double() + sim.acc_mean.double())[:, 2]
             z = seq[:, -1, 2].double().numpy() - outlet_z
-            for b, (lo, hi) in enumerate(bands):
+            since = float(traj.times[t]) - opens
+            for c, ((lo, hi), (t_lo, t_hi)) in enumerate(cells):
+                if not t_lo <= since < t_hi:
+                    continue
                 inside = (z >= lo) & (z < hi)
-                pred_in[b].append(pred.double().numpy()[inside])
-                true_in[b].append(true.numpy()[inside])
+                pred_in[c].append(pred.double().numpy()[inside])
+                true_in[c].append(true.numpy()[inside])
     rows = []
-    for (lo, hi), p, q in zip(bands, pred_in, true_in, strict=True):
+    for ((lo, hi), (t_lo, t_hi)), p, q in zip(cells, pred_in, true_in, strict=True):
         p = np.concatenate(p) if p else np.empty(0)
         q = np.concatenate(q) if q else np.empty(0)
         n = int(p.size)
@@ -98,6 +130,8 @@ def one_step_bias(
             {
                 "z_low": lo,
                 "z_high": hi,
+                "t_low": t_lo,
+                "t_high": t_hi,
                 "count": n,
                 "pred_az": mean(p),
                 "true_az": mean(q),
@@ -109,9 +143,12 @@ def one_step_bias(
 
 
 def format_table(rows: list[dict]) -> str:
-    """Markdown table of :func:`one_step_bias`'s rows (heights in mm)."""
+    """Markdown table of :func:`one_step_bias`'s rows (heights in mm; a time column when the
+    rows have time bands)."""
+    timed = any(math.isfinite(r.get("t_low", -math.inf)) for r in rows)
     columns = [
         "height above the outlet (mm)",
+        *(["after the outlet opens (s)"] if timed else []),
         "particle-windows",
         "predicted a_z",
         "LIGGGHTS a_z",
@@ -121,6 +158,7 @@ def format_table(rows: list[dict]) -> str:
     cells = [
         [
             f"{1e3 * r['z_low']:g} to {1e3 * r['z_high']:g}",
+            *([f"{r['t_low']:g} to {r['t_high']:g}"] if timed else []),
             f"{r['count']}",
             f"{r['pred_az']:.2f}",
             f"{r['true_az']:.2f}",
@@ -129,7 +167,7 @@ def format_table(rows: list[dict]) -> str:
         ]
         for r in rows
     ]
-    table = markdown_table(columns, cells, align="lrrrrr")
+    table = markdown_table(columns, cells, align="l" + "l" * timed + "rrrrr")
     return table + "\n\n(m/s^2; z up, gravity -9.81)\n"
 
 
@@ -140,7 +178,8 @@ def main(cfg: DictConfig) -> None:
     sim.eval()
     trajectories = [read_trajectory(f) for f in cfg.files]
     bands = [(float(lo), float(hi)) for lo, hi in cfg.bands]
-    rows = one_step_bias(sim, trajectories, bands, cfg.every, cfg.last_time)
+    times = None if cfg.times is None else [(float(lo), float(hi)) for lo, hi in cfg.times]
+    rows = one_step_bias(sim, trajectories, bands, cfg.every, cfg.last_time, times)
     module = "granular_pyg.experiments.one_step_bias"
     table = format_table(rows)
     out = Path(cfg.out)

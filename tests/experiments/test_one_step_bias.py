@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -108,3 +109,25 @@ def test_the_command_writes_the_table_for_a_pretrained_model(tmp_path):
     assert len(results["rows"]) == 5 and sum(r["count"] for r in results["rows"]) > 0
     assert "| particle-windows |" in (tmp_path / "table.md").read_text()
     assert "granular_pyg.experiments.one_step_bias ckpt=pretrained:hopper" in results["command"]
+
+
+def test_time_bands_split_each_height_band_by_the_time_since_the_lid_went(hopper):
+    sim = _sim(hopper, 1.5)
+    whole = one_step_bias(sim, [hopper], BANDS)
+    times = [(-1.0, 0.05), (0.05, 0.1), (0.1, 10.0)]  # the lid goes at 0.02 s
+    split = one_step_bias(sim, [hopper], BANDS, times=times)
+    assert [(r["z_low"], r["t_low"]) for r in split] == [(b[0], t[0]) for b in BANDS for t in times]
+    for b, row in enumerate(whole):  # the time bands partition each height band's windows
+        assert sum(r["count"] for r in split[3 * b : 3 * b + 3]) == row["count"]
+    assert split[0]["count"] > 0 and split[2]["count"] > 0  # the bed early and late
+    assert all(r["bias"] == pytest.approx(1.5, abs=1e-3) for r in split if r["count"])
+    assert "| 20 to 1000 | -1 to 0.05 |" in format_table(split)
+    assert "after the outlet opens" not in format_table(whole)
+
+
+def test_time_bands_need_a_scene_whose_outlet_opens(hopper):
+    closed = dataclasses.replace(hopper, scene=None)
+    with pytest.raises(InputError, match="times: trajectory 0 has no wall removed"):
+        one_step_bias(_sim(hopper, None), [closed], BANDS, times=[(0.0, 1.0)])
+    with pytest.raises(InputError, match="times: expected"):
+        one_step_bias(_sim(hopper, None), [hopper], BANDS, times=[(1.0, 0.0)])
