@@ -19,7 +19,6 @@ table and writes ``table.md`` and ``results.json``.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +78,7 @@ def one_step_bias(
 
     Returns:
         One row per (band, time band), heights outer: ``z_low``, ``z_high``, ``t_low``,
-        ``t_high`` (s; +-inf without time bands), ``count`` (particle-windows), ``pred_az``,
+        ``t_high`` (s; None without time bands), ``count`` (particle-windows), ``pred_az``,
         ``true_az``, ``bias`` (pred - true) and ``rmse`` (m/s^2; NaN if empty).
     """
     if not bands or any(not lo < hi for lo, hi in bands):
@@ -91,7 +90,7 @@ def one_step_bias(
         )
     if every < 1:
         raise InputError(f"every: expected a positive stride, got {every}")
-    spans = [(-math.inf, math.inf)] if times is None else list(times)
+    spans = [(None, None)] if times is None else list(times)
     cells = [(b, s) for b in bands for s in spans]
     pred_in = [[] for _ in cells]
     true_in = [[] for _ in cells]
@@ -115,7 +114,7 @@ def one_step_bias(
             z = seq[:, -1, 2].double().numpy() - outlet_z
             since = float(traj.times[t]) - opens
             for c, ((lo, hi), (t_lo, t_hi)) in enumerate(cells):
-                if not t_lo <= since < t_hi:
+                if t_lo is not None and not t_lo <= since < t_hi:
                     continue
                 inside = (z >= lo) & (z < hi)
                 pred_in[c].append(pred.double().numpy()[inside])
@@ -145,7 +144,7 @@ def one_step_bias(
 def format_table(rows: list[dict]) -> str:
     """Markdown table of :func:`one_step_bias`'s rows (heights in mm; a time column when the
     rows have time bands)."""
-    timed = any(math.isfinite(r.get("t_low", -math.inf)) for r in rows)
+    timed = any(r.get("t_low") is not None for r in rows)
     columns = [
         "height above the outlet (mm)",
         *(["after the outlet opens (s)"] if timed else []),

@@ -122,6 +122,7 @@ def test_time_bands_split_each_height_band_by_the_time_since_the_lid_went(hopper
     assert split[0]["count"] > 0 and split[2]["count"] > 0  # the bed early and late
     assert all(r["bias"] == pytest.approx(1.5, abs=1e-3) for r in split if r["count"])
     assert "| 20 to 1000 | -1 to 0.05 |" in format_table(split)
+    assert whole[0]["t_low"] is None  # plain JSON in results.json
     assert "after the outlet opens" not in format_table(whole)
 
 
