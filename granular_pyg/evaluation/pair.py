@@ -288,7 +288,7 @@ def _scene_observable(
     # Both sides against the same initial bed (the particles above the outlet in the first
     # frame), not each against the mass it finally let out.
     bed = flow.bed_mass(t_pos, outlet_z, mass)
-    opened = _opening_time(scene)
+    opened = scene.opening_time or 0.0  # no lid: open from the start
     series["bed_mass"] = np.array(bed)
     for who, pos in (("truth", t_pos), ("pred", p_pos)):
         curve = flow.discharge_curve(pos, outlet_z, mass)
@@ -315,13 +315,6 @@ def _scene_observable(
     scalars["beverloo_rate"] = beverloo.scene_beverloo_rate(scene, truth.radii, outlet_z)
     series["opening_time"] = np.array(opened)
     return "discharged", "discharged fraction of the initial bed"
-
-
-def _opening_time(scene: Scene) -> float:
-    """Recorded time (s) at which the outlet opens: the first wall removal (the lid), 0 when
-    no wall is removed."""
-    removals = [w.removal_time for w in scene.walls if w.removal_time is not None]
-    return float(min(removals, default=0.0))
 
 
 def _angles(pos: np.ndarray, axis: np.ndarray) -> np.ndarray:

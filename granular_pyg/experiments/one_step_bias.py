@@ -45,14 +45,13 @@ __all__ = ["format_table", "one_step_bias"]
 def _opening_time(traj: Trajectory, name: str) -> float:
     """Time (s) the outlet of ``traj`` (called ``name`` in errors) opens: its first wall
     removal."""
-    walls = traj.scene.walls if traj.scene is not None else []
-    removals = [w.removal_time for w in walls if w.removal_time is not None]
-    if not removals:
+    opens = traj.scene.opening_time if traj.scene is not None else None
+    if opens is None:
         raise InputError(
             f"times: {name} has no wall removed (no lid), so no time the outlet opens to count "
             "from; leave it out, or drop times="
         )
-    return float(min(removals))
+    return opens
 
 
 def one_step_bias(
@@ -112,13 +111,14 @@ def one_step_bias(
                 true = sim.target_acceleration(seq, window.target_pos).double()
             true = (true * sim.acc_std.double() + sim.acc_mean.double())[:, 2]
             z = seq[:, -1, 2].double().numpy() - outlet_z
+            pred_z, true_z = pred.double().numpy(), true.numpy()
             since = float(traj.times[t]) - opens
             for c, ((lo, hi), (t_lo, t_hi)) in enumerate(cells):
                 if t_lo is not None and not t_lo <= since < t_hi:
                     continue
                 inside = (z >= lo) & (z < hi)
-                pred_in[c].append(pred.double().numpy()[inside])
-                true_in[c].append(true.numpy()[inside])
+                pred_in[c].append(pred_z[inside])
+                true_in[c].append(true_z[inside])
     rows = []
     for ((lo, hi), (t_lo, t_hi)), p, q in zip(cells, pred_in, true_in, strict=True):
         p = np.concatenate(p) if p else np.empty(0)

@@ -133,7 +133,7 @@ def outlet_of(scene: Scene, outlet_z: float | None = None) -> Outlet | None:
     if outlet_z is None:
         outlet_z = params.get("outlet_z")
         outlet_z = 0.0 if outlet_z is None else float(outlet_z)
-    opened = min((w.removal_time for w in scene.walls if w.removal_time is not None), default=0)
+    opened = scene.opening_time or 0.0
     kept = [w for w in scene.walls if w.removal_time is None]
     if not kept:
         return None

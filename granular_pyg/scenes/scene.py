@@ -529,6 +529,13 @@ class Scene:
         """Recorded frames, including the one at ``t = 0``."""
         return round(self.duration / self.frame_dt) + 1
 
+    @property
+    def opening_time(self) -> float | None:
+        """Time (s) at which the outlet opens: the first wall removal (a hopper's lid); None
+        when no wall is ever removed."""
+        removals = [w.removal_time for w in self.walls if w.removal_time is not None]
+        return float(min(removals)) if removals else None
+
     def wall(self, name: str) -> Wall:
         for wall in self.walls:
             if wall.name == name:

@@ -128,3 +128,8 @@ def test_overfull_drum_is_rejected():
 def test_frame_dt_must_be_a_multiple_of_the_dem_step():
     with pytest.raises(InputError, match="multiple of dem_dt"):
         make_hopper(frame_dt=0.00251)
+
+
+def test_the_outlet_opens_when_the_lid_goes_and_never_in_a_closed_drum():
+    assert make_hopper(t_open=0.125).opening_time == 0.125
+    assert make_drum(drum_radius=0.05, length=0.03, sections=48).opening_time is None
