@@ -71,15 +71,6 @@ from granular_pyg.transforms import AddWallNodes, NeighbourList, RadiusGraph
 __all__ = ["MATERIAL_FEATURES", "LearnedSimulator", "ParticleProps", "WallGuard"]
 
 
-def _context_index(graph: Data | Batch) -> torch.Tensor:
-    """``[N + W]`` int64: each node's graph ``g`` in the batch (0 for a single graph), ``-1 - g``
-    for a wall node (:func:`granular_pyg.nn.horizontal_equivariant.graph_mean`)."""
-    batch = getattr(graph, "batch", None)
-    if batch is None:
-        batch = torch.zeros(graph.is_wall.shape[0], dtype=torch.long, device=graph.is_wall.device)
-    return torch.where(graph.is_wall, -1 - batch, batch)
-
-
 @dataclass
 class WallGuard:
     """Keeps a rollout's particle centres inside the walls (:meth:`WallSet.contain`).
@@ -746,10 +737,10 @@ class LearnedSimulator(nn.Module):
         network = self._compiled_network if compiled else self.model
         if self.equivariant:
             # the edges from wall nodes, only for a processor that sums their messages
-            processor = self.model.processor
-            from_wall = graph.is_wall[graph.edge_index[0]] if processor.wall_sum else None
+            wall_sum = self.model.processor.wall_sum
+            from_wall = graph.is_wall[graph.edge_index[0]] if wall_sum else None
             inputs = (graph.x, graph.vec, graph.edge_index, graph.edge_attr, graph.edge_vec)
-            inputs += (from_wall, _context_index(graph) if processor.global_context else None)
+            inputs += (from_wall,)
         else:
             inputs = (graph.x, graph.edge_index, graph.edge_attr)
         if self.network_dtype is None:

@@ -31,7 +31,7 @@ __all__ = [
     "load_initial_weights",
     "merge_cards",
     "with_initial_model",
-    "with_node_inputs",
+    "with_wall_sum",
 ]
 
 #: Data settings a fine-tuning run takes over from the initial model's training run.
@@ -40,7 +40,7 @@ INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
 #: walls (an older model can learn to see a lid removed or a drum started during the step, or
 #: a wall node per surface patch instead of per triangle),
 #: sleeping and the scene's own frame (rules without weights) and the equivariant
-#: processor's wall sum and graph mean (their weights start at zero: the initial model exactly).
+#: processor's wall sum (its weights start at zero: the initial model exactly).
 HONOURED_MODEL_KEYS = (
     "graph_backend",
     "max_num_neighbors",
@@ -49,10 +49,7 @@ HONOURED_MODEL_KEYS = (
     "sleep",
     "canonical_frame",
     "processor.wall_sum",
-    "processor.global_context",
 )
-#: The equivariant processor's optional node-update inputs, in the order of their blocks.
-OPTIONAL_NODE_INPUTS = ("wall_sum", "global_context")
 
 
 def _read(init: str) -> dict:
@@ -171,36 +168,21 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
         cfg.data.frames_per_step = k
         if cfg.model.get("canonical_frame"):  # it sees each window in its scene's own frame
             cfg.data.augment = False
-        before = saved["model"].get("processor", {})
-        after = cfg.model.processor
-        added = [key for key in OPTIONAL_NODE_INPUTS if after.get(key) and not before.get(key)]
-        if added:
-            if not str(after.get("_target_", "")).endswith("EquivariantProcessor"):
+        if cfg.model.processor.get("wall_sum"):
+            if not str(cfg.model.processor.get("_target_", "")).endswith("EquivariantProcessor"):
                 raise InputError(
-                    f"model.processor.{added[0]}: only the equivariant processor has it; init="
-                    f"{cfg.init} has {after.get('_target_')}; drop the override"
+                    f"model.processor.wall_sum: only the equivariant processor has it; init="
+                    f"{cfg.init} has {cfg.model.processor.get('_target_')}; drop the override"
                 )
-            was = {key: bool(before.get(key)) for key in OPTIONAL_NODE_INPUTS}
-            now = {key: bool(after.get(key)) for key in OPTIONAL_NODE_INPUTS}
-            latent = int(cfg.model.latent)
-            ckpt["state_dict"] = with_node_inputs(ckpt["state_dict"], latent, was, now)
+            ckpt["state_dict"] = with_wall_sum(ckpt["state_dict"], int(cfg.model.latent))
     return cfg, ckpt
 
 
-def with_node_inputs(
-    state_dict: dict, latent: int, before: dict[str, bool], after: dict[str, bool]
-) -> dict:
-    """``state_dict`` (``sim.*`` keys, an equivariant model whose optional node-update inputs
-    are ``before``) with each processor step's node MLP given those of ``after``
-    (:data:`OPTIONAL_NODE_INPUTS`: the wall sum, the graph mean; ``latent`` columns each, after
-    ``2 latent + channels``): a block switched on gets zero columns, so the model is the
-    initial one exactly. Switching a block off is refused (its weights would be lost)."""
-    dropped = [key for key in OPTIONAL_NODE_INPUTS if before.get(key) and not after.get(key)]
-    if dropped:
-        raise InputError(
-            f"model.processor.{dropped[0]}: the initial model has it; keep it on, or train a "
-            "new model without init="
-        )
+def with_wall_sum(state_dict: dict, latent: int) -> dict:
+    """``state_dict`` (``sim.*`` keys, an equivariant model) with each processor step's node
+    MLP widened by ``latent`` zero input columns for the wall sum
+    (:class:`~granular_pyg.nn.HorizontalEquivariantProcessor`'s ``wall_sum``, the last input
+    block): the model without it, exactly. A state dict that has them is returned as is."""
     out = dict(state_dict)
     for key, weight in state_dict.items():
         if not (
@@ -208,19 +190,9 @@ def with_node_inputs(
         ):
             continue
         layer = key[: -len("node_mlp.0.weight")]
-        base = 2 * latent + state_dict[layer + "channel_mix.weight"].shape[0]
-        blocks, start = [weight[:, :base]], base
-        for name in OPTIONAL_NODE_INPUTS:
-            if before.get(name):
-                blocks.append(weight[:, start : start + latent])
-                start += latent
-            elif after.get(name):
-                blocks.append(weight.new_zeros((weight.shape[0], latent)))
-        if start != weight.shape[1]:
-            raise InputError(
-                f"{key}: {weight.shape[1]} input columns, expected {start} for {before}"
-            )
-        out[key] = torch.cat(blocks, dim=1)
+        channels = state_dict[layer + "channel_mix.weight"].shape[0]
+        if weight.shape[1] == 2 * latent + channels:  # without the wall sum (3L + C with it)
+            out[key] = torch.cat([weight, weight.new_zeros((weight.shape[0], latent))], dim=1)
     return out
 
 

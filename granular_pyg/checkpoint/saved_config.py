@@ -63,7 +63,6 @@ def migrate_config(config: dict) -> dict:
         "EquivariantProcessor"
     ):
         processor.setdefault("wall_sum", False)  # each step's mean only, before the wall sum
-        processor.setdefault("global_context", False)  # local only, before the graph mean
     for section, key in (("data", "push_forward_steps"), ("data", "unroll_steps")):
         cfg.get(section, {}).pop(key, None)
     for (section, key), off in _REMOVED.items():

@@ -30,10 +30,8 @@ cut-off). One layer:
     V'_i = V_i + W (\Delta V_i) \odot \sigma(g(s'_i))
 
 with :math:`\bigoplus` the mean (or sum) over incoming edges, ``a, b, g`` linear maps to ``C``
-gates and ``W`` a ``C x C`` channel mix. With ``global_context`` the node update also gets the
-mean of ``s`` over the particles of its graph (invariant, so the symmetries hold). The decoder
-gives the vertical acceleration from the scalars and the horizontal one as
-``sum_c w_c(s_i) V_{i,c}``.
+gates and ``W`` a ``C x C`` channel mix. The decoder gives the vertical acceleration from the
+scalars and the horizontal one as ``sum_c w_c(s_i) V_{i,c}``.
 """
 
 from __future__ import annotations
@@ -54,20 +52,6 @@ __all__ = [
 AGGREGATIONS = ("sum", "mean")
 
 
-def graph_mean(s: Tensor, context_index: Tensor) -> Tensor:
-    """``[N, L]``: each node's row is the mean of ``s [N, L]`` over the particles of its graph.
-
-    ``context_index [N]`` int64 names each node's graph ``g``: ``g`` for a particle, ``-1 - g``
-    for a wall node. Wall nodes get their graph's mean but do not enter it, so that re-meshing
-    a wall changes nothing; a graph without particles gets zeros.
-    """
-    real = context_index >= 0
-    graph = torch.where(real, context_index, -1 - context_index)
-    num_graphs = int(graph.max()) + 1 if graph.numel() else 0
-    means = scatter(s[real], graph[real], dim=0, dim_size=num_graphs, reduce="mean")
-    return means[graph]
-
-
 def _horizontal_dot(vectors: Tensor, direction: Tensor) -> Tensor:
     """``[E, C]`` dot products of ``vectors [E, C, 2]`` with ``direction [E, 2]``."""
     return (vectors * direction.unsqueeze(1)).sum(dim=-1)
@@ -82,8 +66,6 @@ class HorizontalEquivariantLayer(nn.Module):
         aggr: ``"mean"`` or ``"sum"``.
         mlp_layers: hidden layers of each MLP.
         wall_sum: the node update also gets the sum of the edge scalars from wall nodes.
-        global_context: the node update also gets the mean node scalars of the particles of
-            its graph (the last input block, after the wall sum).
     """
 
     def __init__(
@@ -93,14 +75,13 @@ class HorizontalEquivariantLayer(nn.Module):
         aggr: str = "mean",
         mlp_layers: int = 2,
         wall_sum: bool = False,
-        global_context: bool = False,
     ) -> None:
         super().__init__()
         if aggr not in AGGREGATIONS:
             raise InputError(f"aggr: expected one of {AGGREGATIONS}, got {aggr!r}")
         self.latent, self.channels, self.aggr = latent, channels, aggr
-        self.wall_sum, self.global_context = wall_sum, global_context
-        node_in = (2 + int(wall_sum) + int(global_context)) * latent + channels
+        self.wall_sum = wall_sum
+        node_in = (3 if wall_sum else 2) * latent + channels
         self.edge_mlp = MLP(3 * latent + 2 * channels, latent, latent, mlp_layers, layer_norm=True)
         self.node_mlp = MLP(node_in, latent, latent, mlp_layers, layer_norm=True)
         self.vector_gates = nn.Linear(latent, 2 * channels)
@@ -115,7 +96,6 @@ class HorizontalEquivariantLayer(nn.Module):
         e: Tensor,
         d: Tensor,
         from_wall: Tensor | None = None,
-        context_index: Tensor | None = None,
     ) -> tuple[Tensor, Tensor, Tensor]:
         """One step.
 
@@ -127,8 +107,6 @@ class HorizontalEquivariantLayer(nn.Module):
             d: ``[E, 2]`` horizontal displacement ``x_i - x_j`` over the cut-off.
             from_wall: ``[E]`` bool, the edge comes from a wall node (needed with
                 ``wall_sum``).
-            context_index: ``[N]`` int64, each node's graph ``g``, ``-1 - g`` for a wall
-                node (:func:`graph_mean`; needed with ``global_context``).
 
         Returns:
             ``(s' [N, L], vec' [N, C, 2], e' [E, L])``.
@@ -149,8 +127,6 @@ class HorizontalEquivariantLayer(nn.Module):
         if self.wall_sum:  # a wall's support is not averaged away among the particles'
             walls = e * from_wall.unsqueeze(1).to(e.dtype)
             node_in.append(scatter(walls, dst, dim=0, dim_size=num, reduce="sum"))
-        if self.global_context:
-            node_in.append(graph_mean(s, context_index))
         s = s + self.node_mlp(torch.cat(node_in, dim=1))
         mixed = self.channel_mix(agg_vec.transpose(1, 2)).transpose(1, 2)  # [N, C, 2]
         vec = vec + mixed * torch.sigmoid(self.update_gate(s)).unsqueeze(-1)
@@ -175,10 +151,6 @@ class HorizontalEquivariantProcessor(nn.Module):
             acceleration of the bottom layer by 0.01 m/s^2 (LIGGGHTS: 5-9 m/s^2); summed, the
             support of each surface a particle touches counts whole. With ``wall_nodes:
             patch`` (a node per surface) the sum does not depend on the triangulation.
-        global_context: each step's node update also gets the mean node scalars of the
-            particles of its graph. Over a learned step of tens of milliseconds the contacts
-            carry the outlet's news through the whole bed, farther than ``num_steps`` hops of
-            the cut-off reach; the mean is invariant to turns, mirrors, shifts and re-meshing.
     """
 
     def __init__(
@@ -189,7 +161,6 @@ class HorizontalEquivariantProcessor(nn.Module):
         aggr: str = "mean",
         mlp_layers: int = 2,
         wall_sum: bool = False,
-        global_context: bool = False,
     ) -> None:
         super().__init__()
         self.latent = _check_int("latent", latent, 1)
@@ -197,13 +168,9 @@ class HorizontalEquivariantProcessor(nn.Module):
         self.channels = _check_int("channels", channels, 1)
         if not isinstance(wall_sum, bool):
             raise InputError(f"wall_sum: expected true or false, got {wall_sum!r}")
-        if not isinstance(global_context, bool):
-            raise InputError(f"global_context: expected true or false, got {global_context!r}")
-        self.wall_sum, self.global_context = wall_sum, global_context
+        self.wall_sum = wall_sum
         self.layers = nn.ModuleList(
-            HorizontalEquivariantLayer(
-                self.latent, self.channels, aggr, mlp_layers, wall_sum, global_context
-            )
+            HorizontalEquivariantLayer(self.latent, self.channels, aggr, mlp_layers, wall_sum)
             for _ in range(self.num_steps)
         )
 
@@ -215,25 +182,17 @@ class HorizontalEquivariantProcessor(nn.Module):
         e: Tensor,
         d: Tensor,
         from_wall: Tensor | None = None,
-        context_index: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
         """Run every step; returns the node scalars ``[N, L]`` and vectors ``[N, C, 2]``
-        (``from_wall [E]``: the edges from wall nodes, needed with ``wall_sum``;
-        ``context_index [N]``: each node's graph, see :func:`graph_mean`, needed with
-        ``global_context``)."""
+        (``from_wall [E]``: the edges from wall nodes, needed with ``wall_sum``)."""
         if self.wall_sum and from_wall is None:
             raise InputError("wall_sum: the processor needs from_wall, the edges from walls")
-        if self.global_context and context_index is None:
-            raise InputError("global_context: the processor needs context_index, each node's graph")
         for layer in self.layers:
-            s, vec, e = layer(s, vec, edge_index, e, d, from_wall, context_index)
+            s, vec, e = layer(s, vec, edge_index, e, d, from_wall)
         return s, vec
 
     def extra_repr(self) -> str:
-        return (
-            f"num_steps={self.num_steps}, channels={self.channels}, wall_sum={self.wall_sum}, "
-            f"global_context={self.global_context}"
-        )
+        return f"num_steps={self.num_steps}, channels={self.channels}, wall_sum={self.wall_sum}"
 
 
 class HorizontalEquivariantNetwork(nn.Module):
@@ -273,7 +232,6 @@ class HorizontalEquivariantNetwork(nn.Module):
         edge_attr: Tensor,
         edge_vec: Tensor,
         from_wall: Tensor | None = None,
-        context_index: Tensor | None = None,
     ) -> Tensor:
         """Predict the normalised acceleration of every node.
 
@@ -284,8 +242,6 @@ class HorizontalEquivariantNetwork(nn.Module):
             edge_attr: ``[E, edge_in]`` edge scalars.
             edge_vec: ``[E, 2]`` horizontal edge displacement over the cut-off.
             from_wall: ``[E]`` bool, the edges from wall nodes (the processor's ``wall_sum``).
-            context_index: ``[N]`` int64, each node's graph (:func:`graph_mean`; the
-                processor's ``global_context``).
 
         Returns:
             ``[N, 3]``: ``(a_x, a_y, a_z)``.
@@ -293,7 +249,7 @@ class HorizontalEquivariantNetwork(nn.Module):
         s = self.node_encoder(x)
         v = self.vec_encoder(vec.transpose(1, 2)).transpose(1, 2)
         e = self.edge_encoder(edge_attr)
-        s, v = self.processor(s, v, edge_index, e, edge_vec.to(s.dtype), from_wall, context_index)
+        s, v = self.processor(s, v, edge_index, e, edge_vec.to(s.dtype), from_wall)
         out = self.decoder(s)
         horizontal = (out[:, 1:].unsqueeze(-1) * v.to(out.dtype)).sum(dim=1)  # [N, 2]
         return torch.cat([horizontal, out[:, :1]], dim=1)

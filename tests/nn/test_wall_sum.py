@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import torch
 
-from granular_pyg.checkpoint.fine_tune import with_node_inputs
+from granular_pyg.checkpoint.fine_tune import with_wall_sum
 from granular_pyg.checkpoint.saved_config import migrate_config
 from granular_pyg.nn import HorizontalEquivariantProcessor
 from granular_pyg.scenes import WallSet
@@ -34,9 +34,9 @@ def _equivariant(wall_sum: bool) -> LearnedSimulator:
 def test_switching_the_wall_sum_on_keeps_the_trained_model_exactly():
     plain, summed = _equivariant(False), _equivariant(True)
     state = {f"sim.{k}": v for k, v in plain.state_dict().items()}
-    off, on = {"wall_sum": False}, {"wall_sum": True}
-    widened = with_node_inputs(state, 24, off, on)
-    for key, value in with_node_inputs(widened, 24, on, on).items():  # kept: unchanged
+    widened = with_wall_sum(state, 24)
+    assert with_wall_sum(widened, 24).keys() == widened.keys()
+    for key, value in with_wall_sum(widened, 24).items():  # already widened: unchanged
         assert torch.equal(value, widened[key])
     summed.load_state_dict({k[len("sim.") :]: v for k, v in widened.items()})
     traj, seq, t, present = _window("hopper", 30)

@@ -62,20 +62,6 @@ def test_the_learned_step_sets_frames_per_step_and_the_model_comes_from_the_chec
     assert cfg.data.history == cfg.model.history
 
 
-def test_the_graph_mean_is_switched_on_for_an_equivariant_model_only():
-    over = ["model.processor.global_context=true"]
-    composed = compose(
-        "train", [*FINETUNE, "init=pretrained:fast_hopper", "model/processor=equivariant", *over]
-    )
-    cfg, ckpt = with_initial_model(composed, over)
-    assert cfg.model.processor.global_context is True
-    weight = ckpt["state_dict"]["sim.model.processor.layers.0.node_mlp.0.weight"]
-    assert not weight[:, -int(cfg.model.latent) :].any()  # the new block starts at zero
-    plus = ["+model.processor.global_context=true"]  # pretrained:hopper is a bgnn model
-    with pytest.raises(InputError, match="only the equivariant processor"):
-        with_initial_model(compose("train", [*FINETUNE, *plus]), plus)
-
-
 def test_a_frame_spacing_the_step_is_not_a_multiple_of_is_refused(tmp_path):
     import dataclasses
 
