@@ -31,7 +31,6 @@ __all__ = [
     "load_initial_weights",
     "merge_cards",
     "with_initial_model",
-    "with_more_steps",
     "with_wall_sum",
 ]
 
@@ -40,9 +39,8 @@ INHERITED_DATA_KEYS = ("history", "noise_std", "noise_target")
 #: Model keys a fine-tuning run may change: how the graph is searched, how a step sees the
 #: walls (an older model can learn to see a lid removed or a drum started during the step, or
 #: a wall node per surface patch instead of per triangle),
-#: sleeping and the scene's own frame (rules without weights), and the equivariant
-#: processor's wall sum and added steps (their weights start at zero: the initial model
-#: exactly).
+#: sleeping and the scene's own frame (rules without weights) and the equivariant
+#: processor's wall sum (its weights start at zero: the initial model exactly).
 HONOURED_MODEL_KEYS = (
     "graph_backend",
     "max_num_neighbors",
@@ -51,7 +49,6 @@ HONOURED_MODEL_KEYS = (
     "sleep",
     "canonical_frame",
     "processor.wall_sum",
-    "processor.num_steps",
 )
 
 
@@ -178,29 +175,7 @@ def with_initial_model(cfg: DictConfig, overrides: Sequence[str] = ()) -> tuple[
                     f"{cfg.init} has {cfg.model.processor.get('_target_')}; drop the override"
                 )
             ckpt["state_dict"] = with_wall_sum(ckpt["state_dict"], int(cfg.model.latent))
-        saved_steps = int(saved["model"]["processor"].get("num_steps", 1))
-        if int(cfg.model.processor.get("num_steps", saved_steps)) != saved_steps:
-            _check_more_steps(cfg, saved_steps)
-            ckpt["state_dict"] = with_more_steps(
-                ckpt["state_dict"], int(cfg.model.processor.num_steps)
-            )
     return cfg, ckpt
-
-
-def _check_more_steps(cfg: DictConfig, saved_steps: int) -> None:
-    """Refuse a ``model.processor.num_steps`` override that :func:`with_more_steps` cannot
-    honour: another processor than the equivariant one, or fewer steps than the model has."""
-    steps = cfg.model.processor.num_steps
-    if not str(cfg.model.processor.get("_target_", "")).endswith("EquivariantProcessor"):
-        raise InputError(
-            f"model.processor.num_steps: only the equivariant processor can grow; init="
-            f"{cfg.init} has {cfg.model.processor.get('_target_')}; drop the override"
-        )
-    if not isinstance(steps, int) or steps < saved_steps:
-        raise InputError(
-            f"model.processor.num_steps={steps}: fine-tuning can add steps to init={cfg.init}'s "
-            f"{saved_steps}, not remove them; use {saved_steps} or more"
-        )
 
 
 def with_wall_sum(state_dict: dict, latent: int) -> dict:
@@ -218,31 +193,6 @@ def with_wall_sum(state_dict: dict, latent: int) -> dict:
         channels = state_dict[layer + "channel_mix.weight"].shape[0]
         if weight.shape[1] == 2 * latent + channels:  # without the wall sum (3L + C with it)
             out[key] = torch.cat([weight, weight.new_zeros((weight.shape[0], latent))], dim=1)
-    return out
-
-
-def with_more_steps(state_dict: dict, num_steps: int) -> dict:
-    """``state_dict`` (``sim.*`` keys, an equivariant model) with processor steps appended up
-    to ``num_steps``: each a copy of the last step whose edge and node MLPs end in a zero
-    LayerNorm and whose channel mix is zero, so that it passes ``e``, ``s`` and ``vec`` through
-    unchanged (the steps are residual): the model with fewer steps, exactly. The zeroed
-    weights get gradients, so training opens the new steps; each widens the reach of one
-    learned step by the cut-off radius."""
-    prefix = "sim.model.processor.layers."
-    have = {int(k[len(prefix) :].split(".", 1)[0]) for k in state_dict if k.startswith(prefix)}
-    if not have:
-        raise InputError("model.processor.num_steps: the initial model has no processor steps")
-    last = f"{prefix}{max(have)}."
-    template = {k[len(last) :]: v for k, v in state_dict.items() if k.startswith(last)}
-    zeroed = {"channel_mix.weight"}
-    for mlp in ("edge_mlp", "node_mlp"):  # their last module is the output LayerNorm
-        end = max(int(name.split(".")[1]) for name in template if name.startswith(f"{mlp}."))
-        zeroed |= {f"{mlp}.{end}.weight", f"{mlp}.{end}.bias"}
-    out = dict(state_dict)
-    for step in range(max(have) + 1, num_steps):
-        for name, value in template.items():
-            new = value.new_zeros(value.shape) if name in zeroed else value.clone()
-            out[f"{prefix}{step}.{name}"] = new
     return out
 
 
